@@ -1,0 +1,1 @@
+"""rbc_registration: rigid-body registration improved by restoring the rigid-body condition."""

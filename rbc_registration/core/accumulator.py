@@ -1,0 +1,363 @@
+"""Accumulation of fiducial measurements (working frame, destination frame) into the per-fiducial
+means and repeats that :func:`rbc_registration.core.model.build_model` takes.
+
+Shared by the ROS node and the offline bag evaluator: one code path. Pure Python + numpy.
+
+A measurement goes through two steps so that a caller can make it durable in between:
+:meth:`FiducialAccumulator.prepare` validates it and assigns its fiducial id (or raises
+:class:`RejectedMeasurement`), returning an immutable :class:`Measurement` record;
+:meth:`FiducialAccumulator.commit` adds the record. :meth:`FiducialAccumulator.add` does both.
+Replaying the committed records (:meth:`FiducialAccumulator.restore`) rebuilds the identical state,
+because a record carries the id it was given: replay never re-runs the proximity assignment.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Iterable, Optional, Union
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: Reasons a measurement is rejected (the counters of :attr:`FiducialAccumulator.rejected`).
+REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed")
+
+#: Ids given to measurements without one are ``auto-0000``, ``auto-0001``, ...
+AUTO_ID_PREFIX = "auto-"
+_AUTO_ID = re.compile(r"^auto-(\d+)$")
+MAX_ID_LENGTH = 256
+
+
+class RejectedMeasurement(ValueError):
+    """A measurement that must not reach the model.
+
+    :ivar reason: one of :data:`REJECT_REASONS`.
+    :ivar message: what was wrong, for the log.
+    """
+
+    def __init__(self, reason: str, message: str) -> None:
+        if reason not in REJECT_REASONS:
+            raise ValueError(f"reason must be one of {REJECT_REASONS}, got {reason!r}")
+        super().__init__(f"{reason}: {message}")
+        self.reason = reason
+        self.message = message
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One accepted measurement of fiducial ``fiducial_id`` (coordinates in the caller's unit).
+
+    ``working`` and ``destination`` hold the first ``dimension`` coordinates (x, y[, z]);
+    ``auto_id`` is true when the id was assigned by proximity (:attr:`merge_radius`).
+    """
+
+    fiducial_id: str
+    working: tuple[float, ...]
+    destination: tuple[float, ...]
+    stamp_s: float
+    auto_id: bool = False
+
+
+@dataclass(frozen=True)
+class EnabledChange:
+    """Fiducial ``fiducial_id`` excluded from (``enabled=False``) or included in the model."""
+
+    fiducial_id: str
+    enabled: bool
+
+
+Record = Union[Measurement, EnabledChange]
+
+
+@dataclass(frozen=True)
+class FiducialSet:
+    """The enabled fiducials, ready for ``build_model`` (first-seen order, arrays (J, d)).
+
+    ``working`` / ``destination`` are the means of the repeats; ``working_repeats[j]`` is the
+    (n_j, d) array of all measurements of fiducial ``ids[j]`` in the working frame.
+    """
+
+    ids: tuple[str, ...]
+    working: NDArray[np.float64]
+    destination: NDArray[np.float64]
+    working_repeats: tuple[NDArray[np.float64], ...]
+    destination_repeats: tuple[NDArray[np.float64], ...]
+    disabled_ids: tuple[str, ...]
+    n_measurements: int
+
+
+class _Fiducial:
+    """Repeats of one fiducial with running sums (for O(1) means)."""
+
+    __slots__ = ("working", "destination", "sum_w", "sum_d", "enabled")
+
+    def __init__(self, dimension: int) -> None:
+        self.working: list[tuple[float, ...]] = []
+        self.destination: list[tuple[float, ...]] = []
+        self.sum_w = np.zeros(dimension)
+        self.sum_d = np.zeros(dimension)
+        self.enabled = True
+
+    def mean_w(self) -> NDArray[np.float64]:
+        return self.sum_w / len(self.working)
+
+    def mean_d(self) -> NDArray[np.float64]:
+        return self.sum_d / len(self.destination)
+
+
+def _positive(name: str, value: float, allow_zero: bool = False) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'} and finite, got {value!r}")
+    return v
+
+
+class FiducialAccumulator:
+    """Collects measurements per fiducial; validates, assigns ids, rejects outliers.
+
+    :param dimension: 2 (x, y as in the paper; z is dropped) or 3.
+    :param working_frame: the only accepted working frame; an empty frame means this one.
+    :param destination_frame: the only accepted destination frame; empty means this one.
+    :param merge_radius: a measurement without an id joins the nearest fiducial whose mean
+        destination point is within this distance (else a new ``auto-NNNN`` fiducial).
+    :param outlier_distance: a measurement farther than this from its fiducial's mean of earlier
+        repeats (in either frame) is rejected as an outlier; 0 disables the check.
+    :raises ValueError: on a bad dimension, frame or distance.
+    """
+
+    def __init__(self, dimension: int, working_frame: str, destination_frame: str,
+                 merge_radius: float, outlier_distance: float = 0.0) -> None:
+        if dimension not in (2, 3) or isinstance(dimension, bool):
+            raise ValueError(f"dimension must be 2 or 3, got {dimension!r}")
+        for name, frame in (("working_frame", working_frame),
+                            ("destination_frame", destination_frame)):
+            if not isinstance(frame, str) or not frame:
+                raise ValueError(f"{name} must be a non-empty string, got {frame!r}")
+        self.dimension = int(dimension)
+        self.working_frame = working_frame
+        self.destination_frame = destination_frame
+        self.merge_radius = _positive("merge_radius", merge_radius)
+        self.outlier_distance = _positive("outlier_distance", outlier_distance, allow_zero=True)
+        self.clear()
+
+    # -- state --------------------------------------------------------------------------------
+    def clear(self) -> None:
+        """Forget every measurement and reset the counters."""
+        self._fiducials: dict[str, _Fiducial] = {}
+        self._dest_means = np.empty((0, self.dimension))  # row k: mean of fiducial _order[k]
+        self._order: list[str] = []
+        self._index: dict[str, int] = {}
+        self._next_auto = 0
+        self.n_measurements = 0
+        self.rejected = {reason: 0 for reason in REJECT_REASONS}
+
+    @property
+    def n_rejected(self) -> int:
+        """Total rejected measurements (all reasons)."""
+        return sum(self.rejected.values())
+
+    @property
+    def ids(self) -> tuple[str, ...]:
+        """All fiducial ids, enabled or not, in first-seen order."""
+        return tuple(self._order)
+
+    def is_enabled(self, fiducial_id: str) -> bool:
+        """:raises KeyError: for an unknown id."""
+        return self._fiducials[fiducial_id].enabled
+
+    # -- measurements -------------------------------------------------------------------------
+    def reject(self, reason: str, message: str) -> RejectedMeasurement:
+        """Count a rejection and return the exception describing it (for callers that reject
+        before a measurement reaches :meth:`prepare`, e.g. an unpairable point)."""
+        self.rejected[reason] += 1
+        return RejectedMeasurement(reason, message)
+
+    def _coords(self, name: str, xyz: ArrayLike) -> NDArray[np.float64]:
+        try:
+            arr = np.asarray(xyz, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise self.reject("malformed", f"{name} must be numeric, got {xyz!r}") from None
+        if arr.shape not in ((3,), (self.dimension,)):
+            raise self.reject("malformed", f"{name} must have shape (3,) or ({self.dimension},), "
+                                            f"got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise self.reject("nonfinite", f"{name} has NaN or inf: {arr.tolist()}")
+        return arr[:self.dimension]
+
+    def prepare(self, fiducial_id: Optional[str], working_xyz: ArrayLike,
+                destination_xyz: ArrayLike, working_frame: str = "", destination_frame: str = "",
+                stamp_s: float = 0.0) -> Measurement:
+        """Validate one measurement and assign its id, without adding it (see :meth:`commit`).
+
+        :param fiducial_id: the fiducial's id; ``None`` or ``""``: assigned by proximity.
+        :param working_xyz: the point in the working frame, shape (3,) or (dimension,).
+        :param destination_xyz: the same point in the destination frame.
+        :param working_frame: frame of ``working_xyz``; ``""`` means :attr:`working_frame`.
+        :param destination_frame: frame of ``destination_xyz``; ``""`` means the default.
+        :param stamp_s: measurement time [s].
+        :return: the record to :meth:`commit`.
+        :raises RejectedMeasurement: with reason frame, nonfinite, outlier or malformed (the
+            rejection is counted in :attr:`rejected`).
+        """
+        if fiducial_id is not None and not isinstance(fiducial_id, str):
+            raise self.reject("malformed", f"fiducial_id must be a string, got {fiducial_id!r}")
+        if fiducial_id is not None and (len(fiducial_id) > MAX_ID_LENGTH
+                                        or any(c in fiducial_id for c in "\n\r\0")):
+            raise self.reject("malformed", f"fiducial_id must be at most {MAX_ID_LENGTH} "
+                                            f"characters without line breaks, got {fiducial_id!r}")
+        for name, got, want in (("working frame", working_frame, self.working_frame),
+                                ("destination frame", destination_frame,
+                                 self.destination_frame)):
+            if not isinstance(got, str):
+                raise self.reject("malformed", f"{name} must be a string, got {got!r}")
+            if got and got != want:
+                raise self.reject("frame", f"{name} must be {want!r}, got {got!r}")
+        try:
+            stamp = float(stamp_s)
+        except (TypeError, ValueError):
+            raise self.reject("malformed", f"stamp must be a number, got {stamp_s!r}") from None
+        if not math.isfinite(stamp):
+            raise self.reject("malformed", f"stamp must be finite, got {stamp_s!r}")
+        w = self._coords("working point", working_xyz)
+        d = self._coords("destination point", destination_xyz)
+        auto = not fiducial_id
+        fid = self._nearest(d) if auto else fiducial_id
+        if fid is None:
+            fid = self._new_auto_id()
+        fiducial = self._fiducials.get(fid)
+        if fiducial is not None and self.outlier_distance > 0:
+            for name, point, mean in (("working", w, fiducial.mean_w()),
+                                      ("destination", d, fiducial.mean_d())):
+                dist = float(np.linalg.norm(point - mean))
+                if dist > self.outlier_distance:
+                    raise self.reject(
+                        "outlier", f"fiducial {fid!r}: {name} point is {dist:.6g} from the mean "
+                                   f"of its {len(fiducial.working)} earlier repeat(s), more than "
+                                   f"outlier_distance {self.outlier_distance:g}")
+        return Measurement(fid, tuple(w.tolist()), tuple(d.tolist()), stamp, auto)
+
+    def _nearest(self, destination: NDArray[np.float64]) -> Optional[str]:
+        if not self._order:
+            return None
+        dist = np.linalg.norm(self._dest_means - destination, axis=1)
+        k = int(np.argmin(dist))
+        return self._order[k] if dist[k] <= self.merge_radius else None
+
+    def _new_auto_id(self) -> str:
+        n = self._next_auto
+        while f"{AUTO_ID_PREFIX}{n:04d}" in self._fiducials:
+            n += 1
+        return f"{AUTO_ID_PREFIX}{n:04d}"
+
+    def commit(self, record: Record) -> None:
+        """Add a record made by :meth:`prepare` or :meth:`prepare_enabled` (or read back from a
+        journal). Never rejects a measurement: it was validated when prepared.
+
+        :raises ValueError: when a record does not fit this accumulator (dimension, unknown id).
+        """
+        if isinstance(record, EnabledChange):
+            if record.fiducial_id not in self._fiducials:
+                raise ValueError(f"unknown fiducial id {record.fiducial_id!r}")
+            self._fiducials[record.fiducial_id].enabled = bool(record.enabled)
+            return
+        if not isinstance(record, Measurement):
+            raise TypeError(f"record must be a Measurement or EnabledChange, got {record!r}")
+        if len(record.working) != self.dimension or len(record.destination) != self.dimension:
+            raise ValueError(f"record of fiducial {record.fiducial_id!r} has "
+                             f"{len(record.working)} coordinates, expected {self.dimension}")
+        fid = record.fiducial_id
+        fiducial = self._fiducials.get(fid)
+        if fiducial is None:
+            fiducial = self._fiducials[fid] = _Fiducial(self.dimension)
+            self._index[fid] = len(self._order)
+            self._order.append(fid)
+            self._dest_means = np.vstack([self._dest_means, np.zeros((1, self.dimension))])
+            match = _AUTO_ID.match(fid)
+            if match:
+                self._next_auto = max(self._next_auto, int(match.group(1)) + 1)
+        fiducial.working.append(record.working)
+        fiducial.destination.append(record.destination)
+        fiducial.sum_w += record.working
+        fiducial.sum_d += record.destination
+        self._dest_means[self._index[fid]] = fiducial.mean_d()
+        self.n_measurements += 1
+
+    def add(self, fiducial_id: Optional[str], working_xyz: ArrayLike, destination_xyz: ArrayLike,
+            working_frame: str = "", destination_frame: str = "",
+            stamp_s: float = 0.0) -> str:
+        """:meth:`prepare` then :meth:`commit` one measurement.
+
+        :return: the id of the fiducial it was added to.
+        :raises RejectedMeasurement: see :meth:`prepare`.
+        """
+        record = self.prepare(fiducial_id, working_xyz, destination_xyz, working_frame,
+                              destination_frame, stamp_s)
+        self.commit(record)
+        return record.fiducial_id
+
+    # -- enable / disable ---------------------------------------------------------------------
+    def prepare_enabled(self, fiducial_id: str, enabled: bool) -> EnabledChange:
+        """Validate an enable/disable request (see :meth:`commit`).
+
+        :raises KeyError: for an unknown fiducial id (the message lists the known ones).
+        """
+        if fiducial_id not in self._fiducials:
+            known = ", ".join(self._order[:20]) + (" ..." if len(self._order) > 20 else "")
+            raise KeyError(f"unknown fiducial id {fiducial_id!r} (known: {known or 'none'})")
+        return EnabledChange(fiducial_id, bool(enabled))
+
+    def set_enabled(self, fiducial_id: str, enabled: bool) -> None:
+        """Exclude a fiducial from :meth:`fiducial_set` (its measurements are kept) or include it.
+
+        :raises KeyError: for an unknown fiducial id.
+        """
+        self.commit(self.prepare_enabled(fiducial_id, enabled))
+
+    # -- output -------------------------------------------------------------------------------
+    def fiducial_set(self) -> FiducialSet:
+        """The enabled fiducials' means and repeats (see :class:`FiducialSet`)."""
+        ids = [f for f in self._order if self._fiducials[f].enabled]
+        d = self.dimension
+        fids = [self._fiducials[f] for f in ids]
+        return FiducialSet(
+            ids=tuple(ids),
+            working=np.array([f.mean_w() for f in fids]).reshape(-1, d),
+            destination=np.array([f.mean_d() for f in fids]).reshape(-1, d),
+            working_repeats=tuple(np.array(f.working).reshape(-1, d) for f in fids),
+            destination_repeats=tuple(np.array(f.destination).reshape(-1, d) for f in fids),
+            disabled_ids=tuple(f for f in self._order if not self._fiducials[f].enabled),
+            n_measurements=self.n_measurements)
+
+    def restore(self, records: Iterable[Record]) -> list[str]:
+        """Clear, then commit ``records`` in order: the state after the same accepted
+        measurements and enable changes, whatever the parameters were then. Rejection counters
+        start from zero (rejections are not records). A record that does not fit (another
+        dimension, an enable change of an unknown id) is skipped.
+
+        :return: one message per skipped record (empty when all fitted).
+        """
+        self.clear()
+        errors = []
+        for k, record in enumerate(records):
+            try:
+                self.commit(record)
+            except (TypeError, ValueError) as exc:
+                errors.append(f"record {k} skipped: {exc}")
+        return errors
+
+    @property
+    def n_disabled(self) -> int:
+        """Number of disabled fiducials."""
+        return sum(not f.enabled for f in self._fiducials.values())
+
+    def state_digest(self) -> tuple:
+        """A hashable summary of the state (ids, enabled flags, all repeats): equal digests mean
+        equal accumulators. For tests and restart checks."""
+        return tuple((f, self._fiducials[f].enabled, tuple(self._fiducials[f].working),
+                      tuple(self._fiducials[f].destination)) for f in self._order)
+

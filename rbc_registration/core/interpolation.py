@@ -1,0 +1,167 @@
+"""Interpolation of fiducial corrections to targets (paper eq. 5-6).
+
+``paper``: 3D, barycentric weights of the Delaunay tetrahedron of fiducials containing the target;
+2D, normalised inverse-distance weights of the 8 fiducials surrounding the target (the nearest
+fiducial in each 45 degree sector around it, as the 8 neighbours of a hole on a regular grid).
+
+Outside the convex hull of the fiducials the target is flagged (``inside_hull = False``) and the
+correction is extrapolated: 3D, inverse-distance weights of the 4 nearest fiducials; 2D, the same
+sector rule with the sectors that hold fiducials (the nearest fiducial alone if it coincides).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import Delaunay, QhullError, cKDTree
+
+from .validation import as_point_pairs, as_points
+
+#: Fiducials looked at around a 2D target when filling the 8 sectors.
+SECTOR_CANDIDATES = 64
+
+
+class Interpolated(NamedTuple):
+    """Interpolated corrections at K targets (same unit as the points).
+
+    :ivar correction: eps(T), shape (K, d), working frame (eq. 5).
+    :ivar inside_hull: (K,) whether each target is inside the fiducials' convex hull.
+    :ivar expected_error: (K,) 1-sigma uncertainty of eps(T) per axis; NaN when the method gives none.
+    """
+
+    correction: NDArray[np.float64]
+    inside_hull: NDArray[np.bool_]
+    expected_error: NDArray[np.float64]
+
+
+class HullTest:
+    """Point-in-convex-hull test of the fiducials (Delaunay triangulation).
+
+    Fiducials that span no volume (coplanar in 3D, collinear in 2D) have a flat hull: it is
+    triangulated in its own plane (line) and a target is inside only when it lies in that plane.
+    """
+
+    #: Relative thickness below which a fiducial set counts as flat.
+    FLAT = 1e-6
+
+    def __init__(self, points: NDArray[np.float64]) -> None:
+        self.centre = points.mean(axis=0)
+        _, s, vt = np.linalg.svd(points - self.centre, full_matrices=False)
+        self.flat = bool(s[-1] <= self.FLAT * s[0])
+        self.basis = vt[:-1] if self.flat else np.eye(points.shape[1])
+        self.tolerance = self.FLAT * float(s[0]) / np.sqrt(len(points))
+        local = (points - self.centre) @ self.basis.T
+        try:
+            if local.shape[1] == 1:
+                self.tri = None
+                self.interval = (float(local.min()), float(local.max()))
+            else:
+                # QJ joggles exactly regular grids, whose cospherical points are degenerate.
+                self.tri = Delaunay(local, qhull_options="QJ")
+        except QhullError as exc:
+            raise ValueError(f"fiducials span no area for a convex hull: "
+                             f"{str(exc).splitlines()[0]}") from None
+
+    def local(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Coordinates of points in the frame the hull is triangulated in."""
+        return (points - self.centre) @ self.basis.T
+
+    def simplices(self, targets: NDArray[np.float64]) -> NDArray[np.intp]:
+        """Index of the simplex containing each target, -1 outside the hull."""
+        rel = targets - self.centre
+        local = rel @ self.basis.T
+        if self.tri is None:
+            lo, hi = self.interval
+            found = np.where((local[:, 0] >= lo) & (local[:, 0] <= hi), 0, -1)
+        else:
+            found = self.tri.find_simplex(local, tol=1e-9)
+        if self.flat:
+            off = np.linalg.norm(rel - local @ self.basis, axis=1)
+            found = np.where(off <= self.tolerance, found, -1)
+        return found
+
+
+class PaperInterpolator:
+    """The paper's interpolation of fiducial corrections (module docstring)."""
+
+    method = "paper"
+
+    def __init__(self, points: ArrayLike, corrections: ArrayLike) -> None:
+        """:param points: fiducials in the working frame (J, d). :param corrections: eps (J, d)."""
+        self.points, self.corrections = as_point_pairs(points, corrections, min_count=1)
+        self.dim = self.points.shape[1]
+        if len(self.points) < self.dim + 1:
+            raise ValueError(f"interpolation in {self.dim}D needs at least {self.dim + 1} "
+                             f"fiducials, got {len(self.points)}")
+        self.hull = HullTest(self.points)
+        if self.hull.flat:
+            shape = "coplanar" if self.dim == 3 else "collinear"
+            raise ValueError(f"fiducials are {shape}: the paper's interpolation needs fiducials "
+                             f"spanning a {'volume' if self.dim == 3 else 'area'}; use "
+                             f"{'dimension 2 or ' if self.dim == 3 else ''}kriging")
+        self.tree = cKDTree(self.points)
+
+    def weights(self, targets: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.float64],
+                                                    NDArray[np.bool_]]:
+        """Fiducial indices (K, M) and normalised weights (K, M) of eq. 5 for each target.
+
+        Unused slots have weight 0. Also returns the inside-hull flags (K,).
+        """
+        t = as_points(targets, "targets", self.dim)
+        simplex = self.hull.simplices(t)
+        inside = simplex >= 0
+        if self.dim == 3:
+            idx, w = self._tetrahedra(t, simplex)
+        else:
+            idx, w = self._sectors(t)
+        return idx, w, inside
+
+    def __call__(self, targets: ArrayLike) -> Interpolated:
+        """Interpolate corrections at targets (K, d) in the working frame."""
+        idx, w, inside = self.weights(targets)
+        eps = np.einsum("km,kmd->kd", w, self.corrections[idx])
+        return Interpolated(eps, inside, np.full(len(eps), np.nan))
+
+    def _idw(self, t: NDArray[np.float64], k: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        dist, idx = self.tree.query(t, k=min(k, len(self.points)))
+        dist, idx = np.atleast_2d(dist), np.atleast_2d(idx)
+        hit = dist[:, :1] <= 1e-12 * max(1.0, float(np.abs(self.points).max()))
+        w = np.where(hit, (np.arange(idx.shape[1]) == 0).astype(float), 1.0 / np.maximum(dist, 1e-300))
+        return idx, w / w.sum(axis=1, keepdims=True)
+
+    def _tetrahedra(self, t: NDArray[np.float64], simplex: NDArray[np.intp]
+                    ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        idx = np.zeros((len(t), 4), dtype=np.intp)
+        w = np.zeros((len(t), 4))
+        inside = simplex >= 0
+        if inside.any():
+            s = simplex[inside]
+            trans = self.hull.tri.transform[s]         # barycentric coordinates (eq. 5 weights)
+            local = self.hull.local(t[inside])
+            bary = np.einsum("kij,kj->ki", trans[:, :3, :], local - trans[:, 3, :])
+            idx[inside] = self.hull.tri.simplices[s]
+            w[inside] = np.column_stack([bary, 1.0 - bary.sum(axis=1)])
+        if not inside.all():                           # fallback outside the hull
+            idx[~inside], w[~inside] = self._idw(t[~inside], 4)
+        return idx, w
+
+    def _sectors(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        k = min(SECTOR_CANDIDATES, len(self.points))
+        dist, cand = self.tree.query(t, k=k)
+        dist, cand = dist.reshape(len(t), k), cand.reshape(len(t), k)
+        delta = self.points[cand] - t[:, None, :]
+        sector = np.floor((np.arctan2(delta[..., 1], delta[..., 0]) + np.pi / 8)
+                          / (np.pi / 4)).astype(np.intp) % 8
+        in_sector = sector[:, :, None] == np.arange(8)            # (K, k, 8)
+        filled = in_sector.any(axis=1)                            # (K, 8)
+        first = in_sector.argmax(axis=1)                          # candidates sorted by distance
+        rows = np.arange(len(t))[:, None]
+        idx = cand[rows, first]
+        w = np.where(filled, 1.0 / np.maximum(dist[rows, first], 1e-300), 0.0)
+        # A target on a fiducial takes that fiducial's correction.
+        on = dist[:, 0] <= 1e-12 * max(1.0, float(np.abs(self.points).max()))
+        idx[on] = cand[on, :1]
+        w[on] = np.eye(8)[0]
+        return idx, w / w.sum(axis=1, keepdims=True)

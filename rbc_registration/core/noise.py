@@ -1,0 +1,76 @@
+"""Noise sigma from repeated measurements (paper section 4) and the rho decision rule (section 6)."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Optional, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .validation import as_points
+
+RECOMMENDATIONS = ("apply", "uncertain", "do_not_apply", "unknown")
+
+
+def estimate_sigma(repeats: Sequence[ArrayLike]) -> Optional[float]:
+    """Noise sigma from repeated measurements of fiducials (paper section 4).
+
+    For every fiducial with n_j >= 2 measurements, sigma_j^2 is the sample variance of the point,
+    1/(n_j - 1) sum_n ||X_j^(n) - mean_j||^2 (the trace of its covariance, all axes together);
+    sigma^2 is the mean of sigma_j^2 over those fiducials. sigma is thus the RMS distance of one
+    measurement from the true point; the noise per axis is sigma / sqrt(d). With this definition
+    pure noise gives rho = sigma_L0 / sigma = 1 in 2D (0.82 in 3D), the paper's threshold.
+
+    :param repeats: one array (n_j, d) of the working-frame measurements of each fiducial.
+    :return: sigma (same unit as the points), or ``None`` when no fiducial was measured twice.
+    :raises ValueError: on NaN/inf or inconsistent dimensions.
+    """
+    variances = []
+    dim = None
+    for k, group in enumerate(repeats):
+        g = as_points(group, f"repeats of fiducial {k}", dim)
+        dim = g.shape[1]
+        if len(g) >= 2:
+            variances.append(float(np.sum(np.var(g, axis=0, ddof=1))))
+    if not variances:
+        return None
+    return math.sqrt(float(np.mean(variances)))
+
+
+class Assessment(NamedTuple):
+    """The rho rule: ``rho = sigma_L0 / sigma``; ``recommendation`` is one of
+    ``apply`` (rho >= rho_apply), ``uncertain``, ``do_not_apply`` (rho < rho_reject) or
+    ``unknown`` (no sigma)."""
+
+    rho: Optional[float]
+    recommendation: str
+
+
+def assess(sigma_l0: float, sigma: Optional[float], rho_reject: float = 1.0,
+           rho_apply: float = 2.5) -> Assessment:
+    """Decide whether correcting is expected to help (paper section 6).
+
+    :param sigma_l0: sigma_L of the uncorrected fiducials (eq. 7).
+    :param sigma: noise sigma (:func:`estimate_sigma`), or ``None`` when unknown. A sigma of exactly 0 (identical
+        repeats) gives rho = inf.
+    :param rho_reject: below this rho correcting makes registration worse (paper: 1).
+    :param rho_apply: from this rho on correcting helps (paper: 2.5).
+    :raises ValueError: on negative or non-finite values, or ``rho_reject > rho_apply``.
+    """
+    if not math.isfinite(sigma_l0) or sigma_l0 < 0:
+        raise ValueError(f"sigma_L0 must be finite and >= 0, got {sigma_l0}")
+    if not (math.isfinite(rho_reject) and math.isfinite(rho_apply)) or rho_reject < 0:
+        raise ValueError(f"rho thresholds must be finite and >= 0, got {rho_reject}, {rho_apply}")
+    if rho_reject > rho_apply:
+        raise ValueError(f"rho_reject ({rho_reject}) must not exceed rho_apply ({rho_apply})")
+    if sigma is None:
+        return Assessment(None, "unknown")
+    if not math.isfinite(sigma) or sigma < 0:
+        raise ValueError(f"sigma must be finite and >= 0, got {sigma}")
+    rho = math.inf if sigma == 0 else sigma_l0 / sigma
+    if rho >= rho_apply:
+        return Assessment(rho, "apply")
+    if rho < rho_reject:
+        return Assessment(rho, "do_not_apply")
+    return Assessment(rho, "uncertain")

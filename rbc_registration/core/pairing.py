@@ -1,0 +1,185 @@
+"""Pairing of separately published working-frame and destination-frame points by time stamp.
+
+Tracker and robot drivers publish one point each per measurement (``geometry_msgs/PointStamped``);
+a working point and a destination point whose stamps differ by at most ``slop`` seconds are one
+fiducial measurement. Pure Python: used by the ROS node and the offline bag evaluator alike.
+
+Each stream is assumed to arrive in stamp order (as a driver publishes it). A buffered point is
+*stale* once the other stream has delivered a stamp later than ``stamp + slop``: no later point
+of that stream can match it any more, so it is dropped and reported. Buffers are bounded
+(``max_buffer`` per stream, oldest dropped first).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+WORKING = "working"
+DESTINATION = "destination"
+_OTHER = {WORKING: DESTINATION, DESTINATION: WORKING}
+
+
+@dataclass(frozen=True)
+class StampedPoint:
+    """A point (3 coordinates, caller's unit) in ``frame_id`` at ``stamp_s`` seconds."""
+
+    xyz: tuple[float, float, float]
+    frame_id: str
+    stamp_s: float
+
+
+class PointPair(NamedTuple):
+    """A working point and a destination point matched by stamp."""
+
+    working: StampedPoint
+    destination: StampedPoint
+
+    @property
+    def stamp_s(self) -> float:
+        """The stamp of the measurement: the working point's stamp."""
+        return self.working.stamp_s
+
+
+class DroppedPoint(NamedTuple):
+    """A point that will never be paired (counted as a malformed measurement)."""
+
+    stream: str  # "working" or "destination"
+    point: StampedPoint
+    reason: str
+
+
+class PairingResult(NamedTuple):
+    """What one :meth:`StampPairer.add` produced: new pairs and newly dropped points."""
+
+    pairs: tuple[PointPair, ...]
+    dropped: tuple[DroppedPoint, ...]
+
+
+class StampPairer:
+    """Pairs working and destination points whose stamps differ by at most ``slop`` seconds.
+
+    :param slop: the largest stamp difference of a pair [s], > 0.
+    :param max_buffer: the most unmatched points kept per stream (>= 1).
+    :raises ValueError: on a bad slop or buffer size.
+    """
+
+    def __init__(self, slop: float, max_buffer: int = 100) -> None:
+        self.slop = slop
+        if isinstance(max_buffer, bool) or not isinstance(max_buffer, int) or max_buffer < 1:
+            raise ValueError(f"max_buffer must be an integer >= 1, got {max_buffer!r}")
+        self.max_buffer = max_buffer
+        self._buffers: dict[str, deque[StampedPoint]] = {WORKING: deque(), DESTINATION: deque()}
+        self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
+        self.n_pairs = 0
+        self.n_dropped = 0
+
+    @property
+    def slop(self) -> float:
+        """The largest stamp difference of a pair [s]."""
+        return self._slop
+
+    @slop.setter
+    def slop(self, value: float) -> None:
+        v = float(value)
+        if not math.isfinite(v) or v <= 0:
+            raise ValueError(f"slop must be > 0 and finite (seconds), got {value!r}")
+        self._slop = v
+
+    def pending(self, stream: str) -> int:
+        """Number of buffered, unmatched points of ``stream``."""
+        return len(self._buffers[stream])
+
+    def clear(self) -> None:
+        """Drop every buffered point without reporting it (e.g. on reset)."""
+        for buf in self._buffers.values():
+            buf.clear()
+        self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
+
+    def add_working(self, xyz: ArrayLike, frame_id: str, stamp_s: float) -> PairingResult:
+        """Add a working-frame point; see :meth:`add`."""
+        return self.add(WORKING, xyz, frame_id, stamp_s)
+
+    def add_destination(self, xyz: ArrayLike, frame_id: str, stamp_s: float) -> PairingResult:
+        """Add a destination-frame point; see :meth:`add`."""
+        return self.add(DESTINATION, xyz, frame_id, stamp_s)
+
+    def add(self, stream: str, xyz: ArrayLike, frame_id: str, stamp_s: float) -> PairingResult:
+        """Add a point of ``stream`` and pair it with the other stream's nearest-in-time buffered
+        point within the slop, if any.
+
+        Coordinates are not validated here (NaN is passed on to the accumulator, which rejects it
+        with its own reason); only the shape and stamp must be usable for pairing.
+
+        :param stream: ``"working"`` or ``"destination"``.
+        :param xyz: the point, shape (3,).
+        :param frame_id: its frame.
+        :param stamp_s: its stamp [s].
+        :return: the pairs made (0 or 1) and the points dropped as stale or overflowing.
+        :raises ValueError: on an unknown stream, a point that is not 3 numbers or a
+            non-finite stamp (the point is not buffered).
+        """
+        if stream not in self._buffers:
+            raise ValueError(f"stream must be {WORKING!r} or {DESTINATION!r}, got {stream!r}")
+        arr: NDArray[np.float64] = np.asarray(xyz, dtype=np.float64)
+        if arr.shape != (3,):
+            raise ValueError(f"{stream} point must have 3 coordinates, got shape {arr.shape}")
+        stamp = float(stamp_s)
+        if not math.isfinite(stamp):
+            raise ValueError(f"{stream} point stamp must be finite, got {stamp_s!r}")
+        point = StampedPoint((float(arr[0]), float(arr[1]), float(arr[2])), str(frame_id), stamp)
+        other = _OTHER[stream]
+        self._latest[stream] = max(self._latest[stream], stamp)
+        dropped: list[DroppedPoint] = []
+        # Points of the other stream older than stamp - slop cannot match this or later points.
+        self._drop_stale(other, dropped)
+        pairs: tuple[PointPair, ...] = ()
+        match = self._take_nearest(other, stamp)
+        if match is not None:
+            pair = PointPair(point, match) if stream == WORKING else PointPair(match, point)
+            pairs = (pair,)
+            self.n_pairs += 1
+        elif self._latest[other] > stamp + self._slop:
+            # The other stream is already past this point's window: it can never be paired.
+            dropped.append(DroppedPoint(stream, point, f"no {other} point within "
+                                        f"{self._slop:g} s of stamp {stamp:.9f}"))
+        else:
+            buf = self._buffers[stream]
+            buf.append(point)
+            while len(buf) > self.max_buffer:
+                dropped.append(DroppedPoint(stream, buf.popleft(), f"{stream} buffer full "
+                                            f"({self.max_buffer} unmatched points)"))
+        self.n_dropped += len(dropped)
+        return PairingResult(pairs, tuple(dropped))
+
+    def _drop_stale(self, stream: str, dropped: list[DroppedPoint]) -> None:
+        buf = self._buffers[stream]
+        horizon = self._latest[_OTHER[stream]] - self._slop
+        if not buf or min(p.stamp_s for p in buf) >= horizon:
+            return
+        keep = deque()
+        for old in buf:
+            if old.stamp_s < horizon:
+                dropped.append(DroppedPoint(stream, old, f"no {_OTHER[stream]} point within "
+                                            f"{self._slop:g} s of stamp {old.stamp_s:.9f}"))
+            else:
+                keep.append(old)
+        self._buffers[stream] = keep
+
+    def _take_nearest(self, stream: str, stamp: float) -> StampedPoint | None:
+        buf = self._buffers[stream]
+        best_k, best_dt = -1, math.inf
+        for k, candidate in enumerate(buf):
+            dt = abs(candidate.stamp_s - stamp)
+            if dt <= self._slop and dt < best_dt:
+                best_k, best_dt = k, dt
+        if best_k < 0:
+            return None
+        point = buf[best_k]
+        del buf[best_k]
+        return point

@@ -1,0 +1,84 @@
+"""Input checks shared by the core modules: every public function validates first and raises a
+``ValueError`` (or ``TypeError``) naming what it got."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: Points farther than this from the origin are rejected: squaring them would overflow to inf.
+MAX_ABS_COORDINATE = 1e150
+
+
+def as_points(points: ArrayLike, name: str = "points", dim: Optional[int] = None,
+              min_count: int = 0) -> NDArray[np.float64]:
+    """Return ``points`` as a float64 array of shape (N, d), d in {2, 3}, all finite.
+
+    :param points: array-like of shape (N, d).
+    :param name: name used in error messages.
+    :param dim: required dimension d (2 or 3); ``None`` accepts either.
+    :param min_count: minimum number of points N.
+    :return: the validated (N, d) float64 array (a copy when a conversion was needed).
+    :raises TypeError: when ``points`` is not numeric.
+    :raises ValueError: on a wrong shape, too few points, NaN/inf or absurdly large coordinates.
+    """
+    try:
+        arr = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be numeric, got {type(points).__name__}: {exc}") from None
+    want = f"(N, {dim})" if dim is not None else "(N, 2) or (N, 3)"
+    if arr.ndim != 2 or arr.shape[1] not in (2, 3) or (dim is not None and arr.shape[1] != dim):
+        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+    if arr.shape[0] < min_count:
+        raise ValueError(f"{name} needs at least {min_count} points, got {arr.shape[0]}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise ValueError(f"{name} contains NaN or inf (first at row {row}: {arr[row].tolist()})")
+    if arr.size and np.abs(arr).max() > MAX_ABS_COORDINATE:
+        row = int(np.argmax(np.abs(arr).max(axis=1)))
+        raise ValueError(f"{name} has a coordinate beyond ±{MAX_ABS_COORDINATE:g} at row {row}")
+    return arr
+
+
+def as_point_pairs(working: ArrayLike, destination: ArrayLike, dim: Optional[int] = None,
+                   min_count: int = 0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Validate two corresponding point sets of equal shape (J, d); see :func:`as_points`."""
+    x = as_points(working, "working points", dim, min_count)
+    y = as_points(destination, "destination points", x.shape[1], min_count)
+    if x.shape != y.shape:
+        raise ValueError(f"working and destination points must have the same shape, "
+                         f"got {x.shape} and {y.shape}")
+    return x, y
+
+
+def check_spread(points: NDArray[np.float64], name: str = "points") -> None:
+    """Raise ``ValueError`` when the points cannot fix a rigid registration.
+
+    2D needs two distinct points; 3D needs three points that are not collinear.
+    """
+    d = points.shape[1]
+    centred = points - points.mean(axis=0)
+    s = np.linalg.svd(centred, compute_uv=False) if len(points) else np.zeros(1)
+    scale = max(float(np.abs(points).max(initial=0.0)), 1.0)
+    tol = 1e-9 * scale * np.sqrt(max(len(points), 1))
+    if s[0] <= tol:
+        raise ValueError(f"{name} are coincident: a registration needs distinct points")
+    if d == 3 and (len(s) < 2 or s[1] <= tol):
+        raise ValueError(f"{name} are collinear: a 3D registration needs 3 non-collinear points")
+
+
+def check_subset(subset: Optional[object], count: int, name: str) -> NDArray[np.intp]:
+    """Return the indices of a subset of ``count`` fiducials (all when ``subset`` is None)."""
+    if subset is None:
+        return np.arange(count)
+    idx = np.asarray(subset)
+    if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"{name} must be a non-empty list of fiducial indices, got {subset!r}")
+    if idx.min() < 0 or idx.max() >= count:
+        raise ValueError(f"{name} has an index out of range 0..{count - 1}: {subset!r}")
+    if len(np.unique(idx)) != len(idx):
+        raise ValueError(f"{name} repeats an index: {subset!r}")
+    return idx.astype(np.intp)

@@ -1,0 +1,216 @@
+"""CSV files of fiducials and targets.
+
+FIDUCIALS.csv: header ``id,wx,wy,wz,dx,dy,dz`` (w*: working frame, d*: destination frame; 2D files
+may omit ``wz,dz``). Rows sharing an id are repeated measurements of one fiducial: their mean is its
+location, their scatter gives sigma. TARGETS.csv: ``id,wx,wy,wz`` and optionally ``dx,dy,dz``
+(truth). Any consistent length unit. Extra columns are ignored; column order is free.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..core.validation import MAX_ABS_COORDINATE
+
+PathLike = Union[str, Path]
+#: Repeats of one id whose destination points differ by more than this fraction of the smallest
+#: distance between distinct fiducials are taken as a conflict (two different points, one id).
+CONFLICT_FRACTION = 0.25
+
+
+class CsvError(ValueError):
+    """A CSV file that cannot be used; the message names the file, row and column."""
+
+
+@dataclass(frozen=True)
+class FiducialTable:
+    """Fiducials read from CSV, in order of first appearance.
+
+    :ivar working_repeats / destination_repeats: per fiducial, (n_j, d) measurements.
+    """
+
+    ids: tuple[str, ...]
+    working_repeats: tuple[NDArray[np.float64], ...]
+    destination_repeats: tuple[NDArray[np.float64], ...]
+    dimension: int
+
+    @property
+    def working(self) -> NDArray[np.float64]:
+        """Mean working-frame location of each fiducial (J, d)."""
+        return np.array([r.mean(axis=0) for r in self.working_repeats])
+
+    @property
+    def destination(self) -> NDArray[np.float64]:
+        """Mean destination-frame location of each fiducial (J, d)."""
+        return np.array([r.mean(axis=0) for r in self.destination_repeats])
+
+
+@dataclass(frozen=True)
+class TargetTable:
+    """Targets read from CSV (repeats of an id are averaged)."""
+
+    ids: tuple[str, ...]
+    working: NDArray[np.float64]
+    destination: Optional[NDArray[np.float64]]
+
+
+def _read_rows(path: PathLike, required: list[str]) -> tuple[list[str], list[dict[str, str]]]:
+    p = Path(path)
+    try:
+        with p.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            header = [h.strip() for h in (reader.fieldnames or [])]
+            rows = [{(k or "").strip(): (v or "").strip() if isinstance(v, str) else v
+                     for k, v in row.items()} for row in reader]
+    except FileNotFoundError:
+        raise CsvError(f"{p}: no such file") from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise CsvError(f"{p}: not a readable CSV file ({exc})") from None
+    if not header:
+        raise CsvError(f"{p}: empty file (expected a header {','.join(required)})")
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise CsvError(f"{p}: missing column(s) {', '.join(missing)}; header is "
+                       f"{','.join(header)}")
+    if not rows:
+        raise CsvError(f"{p}: no data rows")
+    return header, rows
+
+
+def _number(p: PathLike, line: int, column: str, text: Optional[str]) -> float:
+    if text is None or text == "":
+        raise CsvError(f"{p}: row {line}: column {column} is empty")
+    try:
+        value = float(text)
+    except ValueError:
+        raise CsvError(f"{p}: row {line}: column {column} is not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise CsvError(f"{p}: row {line}: column {column} is not finite: {text!r}")
+    if abs(value) > MAX_ABS_COORDINATE:
+        raise CsvError(f"{p}: row {line}: column {column} is out of range: {text!r}")
+    return value
+
+
+def _dimension(p: PathLike, header: list[str], prefixes: list[str], dim: Optional[int]) -> int:
+    has_z = [f"{pre}z" in header for pre in prefixes]
+    if dim is None:
+        if any(has_z) and not all(has_z):
+            cols = ", ".join(f"{pre}z" for pre, h in zip(prefixes, has_z) if not h)
+            raise CsvError(f"{p}: mixed 2D/3D columns: missing {cols}")
+        return 3 if all(has_z) else 2
+    if dim not in (2, 3):
+        raise CsvError(f"dimension must be 2 or 3, got {dim}")
+    if dim == 3 and not all(has_z):
+        raise CsvError(f"{p}: --dim 3 needs columns " + ", ".join(f"{pre}z" for pre in prefixes))
+    return dim
+
+
+def read_fiducials(path: PathLike, dim: Optional[int] = None) -> FiducialTable:
+    """Read FIDUCIALS.csv (module docstring).
+
+    :param path: the file.
+    :param dim: 2 or 3; ``None``: 3 when ``wz`` and ``dz`` exist, else 2. With 2, z is ignored.
+    :raises CsvError: naming the file, row and column of the first problem, including ids whose
+        repeated destination points conflict.
+    """
+    header, rows = _read_rows(path, ["id", "wx", "wy", "dx", "dy"])
+    d = _dimension(path, header, ["w", "d"], dim)
+    axes = "xyz"[:d]
+    groups: dict[str, tuple[list, list, int]] = {}
+    for line, row in enumerate(rows, start=2):
+        fid = row.get("id") or ""
+        if not fid:
+            raise CsvError(f"{path}: row {line}: column id is empty")
+        w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
+        t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes]
+        groups.setdefault(fid, ([], [], line))
+        groups[fid][0].append(w)
+        groups[fid][1].append(t)
+    ids = tuple(groups)
+    work = tuple(np.array(g[0]) for g in groups.values())
+    dest = tuple(np.array(g[1]) for g in groups.values())
+    _check_conflicts(path, ids, dest, [g[2] for g in groups.values()])
+    return FiducialTable(ids, work, dest, d)
+
+
+def _check_conflicts(path: PathLike, ids: tuple[str, ...], dest: tuple[NDArray[np.float64], ...],
+                     first_lines: list[int]) -> None:
+    means = np.array([g.mean(axis=0) for g in dest])
+    if len(means) < 2:
+        return
+    from scipy.spatial import cKDTree
+    dist, _ = cKDTree(means).query(means, k=2)
+    spacing = float(np.min(dist[:, 1]))
+    for fid, group, line in zip(ids, dest, first_lines):
+        if len(group) < 2:
+            continue
+        spread = float(np.max(np.linalg.norm(group - group.mean(axis=0), axis=1)))
+        if spacing > 0 and spread > CONFLICT_FRACTION * spacing:
+            raise CsvError(f"{path}: id {fid!r} (first at row {line}) has conflicting destination "
+                           f"points: its repeats spread {spread:.6g}, more than "
+                           f"{CONFLICT_FRACTION:g} x the fiducial spacing {spacing:.6g}")
+
+
+def read_targets(path: PathLike, dim: int) -> TargetTable:
+    """Read TARGETS.csv: ``id,wx,wy[,wz]`` and optionally ``dx,dy[,dz]`` (truth).
+
+    :raises CsvError: naming the file, row and column of the first problem.
+    """
+    header, rows = _read_rows(path, ["id", "wx", "wy"] + (["wz"] if dim == 3 else []))
+    axes = "xyz"[:dim]
+    has_truth = all(f"d{a}" in header for a in axes)
+    partial = [f"d{a}" for a in axes if f"d{a}" in header]
+    if partial and not has_truth:
+        raise CsvError(f"{path}: truth columns incomplete: has {', '.join(partial)}, needs "
+                       + ", ".join(f"d{a}" for a in axes))
+    groups: dict[str, tuple[list, list]] = {}
+    for line, row in enumerate(rows, start=2):
+        tid = row.get("id") or ""
+        if not tid:
+            raise CsvError(f"{path}: row {line}: column id is empty")
+        w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
+        t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes] if has_truth else []
+        groups.setdefault(tid, ([], []))
+        groups[tid][0].append(w)
+        groups[tid][1].append(t)
+    ids = tuple(groups)
+    work = np.array([np.mean(g[0], axis=0) for g in groups.values()])
+    truth = np.array([np.mean(g[1], axis=0) for g in groups.values()]) if has_truth else None
+    return TargetTable(ids, work, truth)
+
+
+def write_fiducials(path: PathLike, ids, working_repeats, destination_repeats) -> None:
+    """Write FIDUCIALS.csv: one row per measurement (repeats share an id)."""
+    d = np.asarray(working_repeats[0]).shape[1]
+    axes = "xyz"[:d]
+    with Path(path).open("w", newline="") as fh:
+        out = csv.writer(fh)
+        out.writerow(["id"] + [f"w{a}" for a in axes] + [f"d{a}" for a in axes])
+        for fid, w, t in zip(ids, working_repeats, destination_repeats):
+            w, t = np.atleast_2d(w), np.atleast_2d(t)
+            if len(t) == 1 and len(w) > 1:
+                t = np.repeat(t, len(w), axis=0)
+            for wr, tr in zip(w, t):
+                out.writerow([fid] + [repr(float(v)) for v in wr] + [repr(float(v)) for v in tr])
+
+
+def write_targets(path: PathLike, ids, working, destination=None) -> None:
+    """Write TARGETS.csv (truth columns when ``destination`` is given)."""
+    work = np.asarray(working)
+    axes = "xyz"[:work.shape[1]]
+    with Path(path).open("w", newline="") as fh:
+        out = csv.writer(fh)
+        out.writerow(["id"] + [f"w{a}" for a in axes]
+                     + ([f"d{a}" for a in axes] if destination is not None else []))
+        for k, tid in enumerate(ids):
+            row = [tid] + [repr(float(v)) for v in work[k]]
+            if destination is not None:
+                row += [repr(float(v)) for v in np.asarray(destination)[k]]
+            out.writerow(row)

@@ -1,0 +1,111 @@
+"""Figures of the paper's kind (Figs 2-5) and a fiducial map, as PNG (matplotlib, Agg)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+STAGE_TITLES = ("original", "after step 1", "after step 2", "after step 3")
+
+
+def mismatch_histograms(path: Path, stages: Sequence[NDArray[np.float64]],
+                        edges: Sequence[NDArray[np.float64]], title: str, unit: str,
+                        envelopes: Optional[Sequence[NDArray[np.int64]]] = None) -> Path:
+    """Histograms of L per restoration stage (Figs 2-3).
+
+    :param stages: L values (averaged fiducials) per stage, filled grey.
+    :param edges: bin edges per stage.
+    :param envelopes: per stage, (N, bins) counts of the N instantaneous datasets: their lower and
+        upper count per bin are drawn as solid and dashed lines (Fig. 2, lines B and C).
+    """
+    n = len(stages)
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.4), squeeze=False)
+    for s, (ax, vals, e) in enumerate(zip(axes[0], stages, edges)):
+        ax.hist(vals, bins=e, color="0.7", label="averaged" if envelopes is not None else "L")
+        if envelopes is not None:
+            centres = 0.5 * (e[:-1] + e[1:])
+            ax.step(centres, envelopes[s].min(axis=0), "k-", where="mid", lw=1,
+                    label="instantaneous, min")
+            ax.step(centres, envelopes[s].max(axis=0), "k--", where="mid", lw=1,
+                    label="instantaneous, max")
+        ax.set_title(f"({chr(97 + s)}) {STAGE_TITLES[min(s, 3)]}, sigma_L={np.std(vals):.2g}")
+        ax.set_xlabel(f"L [{unit}]")
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
+        if s == 0:
+            ax.set_ylabel("count")
+            ax.legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def tre_per_target(path: Path, ids: Sequence[str], series: dict[str, ArrayLike], title: str,
+                   unit: str) -> Path:
+    """TRE per target for several methods (Figs 4 and 5a)."""
+    k = np.arange(1, len(ids) + 1)
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.12 * len(ids) + 3), 3.6))
+    markers = ["o", "s", "^", "v", "D"]
+    for (label, values), m in zip(series.items(), markers):
+        ax.plot(k, np.asarray(values), m + "-", ms=4, lw=0.8, label=label)
+    ax.set_xlabel("target k")
+    ax.set_ylabel(f"TRE [{unit}]")
+    ax.set_yscale("log")
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def delta_tre(path: Path, ids: Sequence[str], delta: ArrayLike, title: str, unit: str) -> Path:
+    """Delta TRE = TRE_c - TRE_u per target (Fig. 5b); below zero is an improvement."""
+    d = np.asarray(delta, dtype=float)
+    k = np.arange(1, len(d) + 1)
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.12 * len(d) + 3), 3.2))
+    ax.bar(k, d, color=np.where(d < 0, "tab:green", "tab:red"))
+    ax.axhline(0, color="k", lw=0.8)
+    ax.set_xlabel("target k")
+    ax.set_ylabel(f"dTRE [{unit}]")
+    ax.set_title(f"{title}: improved {np.mean(d < 0) * 100:.0f}% of targets")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def fiducial_map(path: Path, working: ArrayLike, corrections: ArrayLike, unit: str,
+                 targets: Optional[ArrayLike] = None, title: str = "fiducials") -> Path:
+    """Fiducials (x, y of the working frame) with their correction arrows, scaled to be visible."""
+    x = np.asarray(working, dtype=float)
+    eps = np.asarray(corrections, dtype=float)
+    span = float(np.ptp(x[:, :2], axis=0).max()) or 1.0
+    longest = float(np.linalg.norm(eps[:, :2], axis=1).max()) or 1.0
+    scale = 0.08 * span / longest
+    fig, ax = plt.subplots(figsize=(6, 5.5))
+    ax.plot(x[:, 0], x[:, 1], "k.", ms=4, label="fiducials")
+    ax.quiver(x[:, 0], x[:, 1], -eps[:, 0] * scale, -eps[:, 1] * scale, angles="xy",
+              scale_units="xy", scale=1, color="tab:blue", width=0.003,
+              label=f"-correction x {scale:.3g}")
+    if targets is not None and len(targets):
+        t = np.asarray(targets, dtype=float)
+        ax.plot(t[:, 0], t[:, 1], "r^", ms=5, label="targets")
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"x [{unit}]")
+    ax.set_ylabel(f"y [{unit}]")
+    ax.set_title(title)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _save(fig, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

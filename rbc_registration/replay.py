@@ -1,0 +1,143 @@
+"""Replay a bag into the live ROS graph (rclpy): every message is published, as recorded
+(serialized CDR, header stamps unchanged), at its receive time scaled by ``rate``.
+
+Imported only by ``rbc-registration replay`` and the demo, so ``evaluate`` and ``synth-bag`` never
+load rclpy. The whole bag is read into memory first.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from pathlib import Path
+from typing import Any, NamedTuple, Optional, Sequence, Union
+
+from .io.bag import BagError, Progress, RawMessage, read_raw
+
+#: Reliable, volatile, keep-all: a slow subscriber delays the replay instead of losing messages.
+SETTLE_S = 0.5      # after the first subscriber matched: time for the others to be discovered
+ACK_TIMEOUT_S = 10.0
+
+
+class ReplayResult(NamedTuple):
+    """What a replay did: messages published, distinct topics, wall time [s], passes."""
+
+    published: int
+    topics: int
+    seconds: float
+    passes: int
+
+
+def message_class(msgtype: str) -> Any:
+    """``pkg/msg/Type`` -> the rclpy message class.
+
+    :raises BagError: when the package is not installed for Python.
+    """
+    pkg, _, name = msgtype.rpartition("/")
+    module = pkg.replace("/", ".")
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError):
+        raise BagError(f"missing type definition: no Python message type {msgtype} (is the "
+                       f"package {msgtype.split('/')[0]} installed?)") from None
+
+
+def _wait_for_subscribers(publishers: dict[str, Any], wait: float,
+                          log: Any) -> None:
+    """Wait until a subscriber matched (then ``SETTLE_S`` more) or ``wait`` seconds passed."""
+    if wait <= 0:
+        return
+    end = time.monotonic() + wait
+    first = None
+    while time.monotonic() < end:
+        matched = [t for t, p in publishers.items() if p.get_subscription_count() > 0]
+        if len(matched) == len(publishers):
+            return
+        if matched and first is None:
+            first = time.monotonic()
+        if first is not None and time.monotonic() - first >= SETTLE_S:
+            break
+        time.sleep(0.02)
+    missing = [t for t, p in publishers.items() if p.get_subscription_count() == 0]
+    if missing:
+        log(f"replay: no subscriber on {', '.join(missing)} (after {wait:g} s at most); "
+            "publishing anyway")
+
+
+def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
+           topics: Optional[Sequence[str]] = None, wait: float = 5.0,
+           context: Any = None, progress: bool = True, log: Any = print) -> ReplayResult:
+    """Publish the messages of ``bag`` with their recorded timing divided by ``rate``.
+
+    :param rate: time scale (> 0): 2 plays twice as fast.
+    :param loop: play again and again until interrupted (KeyboardInterrupt).
+    :param topics: only these topics (default: all whose type rclpy knows).
+    :param wait: seconds to wait at most for subscribers before the first message.
+    :param context: an initialised ``rclpy.Context`` to use; default: a new one, shut down after.
+    :raises BagError: for a bad bag, an unknown topic or a type rclpy does not know.
+    :raises ValueError: for a rate <= 0.
+    """
+    if not rate > 0:
+        raise ValueError(f"rate must be > 0, got {rate!r}")
+    messages = read_raw(bag, topics, progress=progress)
+    types = {m.topic: m.msgtype for m in messages}
+    classes = {}
+    for topic, msgtype in types.items():
+        try:
+            classes[topic] = message_class(msgtype)
+        except BagError:
+            if topics:
+                raise
+            log(f"replay: skipping {topic}: no Python message type {msgtype}")
+    messages = [m for m in messages if m.topic in classes]
+    if not messages:
+        raise BagError(f"bag {bag}: no messages to replay")
+
+    import rclpy
+    from rclpy.duration import Duration
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+
+    own = context is None
+    if own:
+        context = rclpy.Context()
+        # Ctrl-C raises KeyboardInterrupt here (no rclpy handler): the finally below cleans up.
+        rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        node = rclpy.create_node("rbc_bag_replay", context=context,
+                                 start_parameter_services=False)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+        publishers = {t: node.create_publisher(c, t, qos) for t, c in classes.items()}
+        _wait_for_subscribers(publishers, wait, log)
+        started = time.monotonic()
+        published, passes = _play(messages, publishers, rate, loop, progress)
+        for pub in publishers.values():
+            pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
+        return ReplayResult(published, len(publishers), time.monotonic() - started, passes)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if own:
+            rclpy.try_shutdown(context=context)
+
+
+def _play(messages: list[RawMessage], publishers: dict[str, Any], rate: float, loop: bool,
+          progress: bool) -> tuple[int, int]:
+    t0 = messages[0].log_ns
+    published = passes = 0
+    while True:
+        bar = Progress("replay", len(messages), enabled=progress)
+        start = time.monotonic()
+        for m in messages:
+            delay = start + (m.log_ns - t0) * 1e-9 / rate - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            publishers[m.topic].publish(m.data)
+            published += 1
+            bar.update()
+        bar.done()
+        passes += 1
+        if not loop:
+            return published, passes

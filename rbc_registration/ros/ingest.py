@@ -1,0 +1,162 @@
+"""Thread-safe ingestion for ``registration_node``: pairing, validation (the shared
+:class:`~rbc_registration.core.accumulator.FiducialAccumulator`), journaling before a
+measurement counts, rejection logging. No rclpy: the node passes its logger in.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Optional
+
+from rbc_registration.core.accumulator import (FiducialAccumulator, FiducialSet, Record,
+                                               RejectedMeasurement)
+from rbc_registration.core.pairing import StampPairer
+
+from .conversions import PairArgs
+from .params import Settings
+from .persistence import Journal
+from .reports import Counters
+
+#: Every rejection of a reason is logged up to this count, then at most once per second.
+LOG_EVERY_UP_TO = 20
+
+
+class Ingest:
+    """The node's measurement store: all methods may be called from any thread.
+
+    :param accumulator: validates, assigns ids and accumulates measurements.
+    :param pairer: pairs ``~/working_point`` and ``~/destination_point`` by stamp.
+    :param journal: appends each accepted record before it counts; ``None``: no persistence.
+    :param logger: an rclpy-style logger (``warning``, ``error``, ``info``).
+    """
+
+    def __init__(self, accumulator: FiducialAccumulator, pairer: StampPairer,
+                 journal: Optional[Journal], logger: Any) -> None:
+        self._acc = accumulator
+        self._pairer = pairer
+        self._journal = journal
+        self._log = logger
+        self._lock = threading.Lock()
+        self._last_log: dict[str, float] = {}
+        self.journal_error = ""
+
+    def restore(self) -> int:
+        """Replay the journal (if any) into the accumulator; return the measurements restored.
+
+        :raises persistence.JournalMismatch: when the journal belongs to another setup.
+        """
+        if self._journal is None:
+            return 0
+        records, warnings = self._journal.load()
+        for warning in warnings:
+            self._log.warning(warning)
+        with self._lock:
+            for error in self._acc.restore(records):
+                self._log.warning(f"journal: {error}")
+            return self._acc.n_measurements
+
+    def _rejected(self, exc: RejectedMeasurement) -> None:
+        count = self._acc.rejected[exc.reason]
+        now = time.monotonic()
+        if count <= LOG_EVERY_UP_TO or now - self._last_log.get(exc.reason, 0.0) >= 1.0:
+            self._last_log[exc.reason] = now
+            self._log.warning(f"rejected measurement ({exc.reason}, {count} so far): "
+                              f"{exc.message}")
+
+    def _accept(self, record: Record) -> bool:
+        """Journal (flushed) then commit; False when the journal cannot be written."""
+        if self._journal is not None:
+            try:
+                self._journal.append(record)
+            except OSError as exc:
+                self.journal_error = str(exc)
+                self._log.error(f"journal write failed, measurement NOT accepted: {exc}")
+                return False
+            self.journal_error = ""
+        self._acc.commit(record)
+        return True
+
+    def _measurement_locked(self, args: PairArgs) -> bool:
+        try:
+            record = self._acc.prepare(*args)
+        except RejectedMeasurement as exc:
+            self._rejected(exc)
+            return False
+        return self._accept(record)
+
+    def measurement(self, args: PairArgs) -> bool:
+        """One FiducialPair measurement; True when accepted (journaled and counted)."""
+        with self._lock:
+            return self._measurement_locked(args)
+
+    def point(self, stream: str, xyz: Any, frame_id: str, stamp_s: float) -> bool:
+        """One ``~/working_point`` / ``~/destination_point``; True when it completed a pair that
+        was accepted. Unpairable points are rejected as malformed."""
+        with self._lock:
+            try:
+                result = self._pairer.add(stream, xyz, frame_id, stamp_s)
+            except ValueError as exc:
+                self._rejected(self._acc.reject("malformed", str(exc)))
+                return False
+            for dropped in result.dropped:
+                self._rejected(self._acc.reject("malformed", f"unpaired {dropped.stream} point "
+                                                f"dropped: {dropped.reason}"))
+            accepted = False
+            for pair in result.pairs:
+                accepted |= self._measurement_locked(PairArgs(
+                    None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
+                    pair.destination.frame_id, pair.stamp_s))
+            return accepted
+
+    def set_enabled(self, fiducial_id: str, enabled: bool) -> tuple[bool, str]:
+        """Enable or disable a fiducial (journaled); returns (success, message)."""
+        with self._lock:
+            try:
+                change = self._acc.prepare_enabled(fiducial_id, enabled)
+            except KeyError as exc:
+                return False, str(exc.args[0])
+            word = "enabled" if enabled else "disabled"
+            if self._acc.is_enabled(fiducial_id) == bool(enabled):
+                return True, f"fiducial {fiducial_id!r} was already {word}"
+            if not self._accept(change):
+                return False, f"journal write failed: {self.journal_error}"
+            return True, f"fiducial {fiducial_id!r} {word}; the model is rebuilt after debounce"
+
+    def reset(self) -> tuple[bool, str]:
+        """Forget all measurements; the journal is archived. Returns (success, message)."""
+        with self._lock:
+            self._acc.clear()
+            self._pairer.clear()
+            if self._journal is None:
+                return True, "all measurements forgotten"
+            try:
+                archived = self._journal.archive()
+            except OSError as exc:
+                self.journal_error = str(exc)
+                return False, f"measurements forgotten, but archiving the journal failed: {exc}"
+            return True, f"all measurements forgotten; journal archived as {archived}"
+
+    def configure(self, settings: Settings) -> None:
+        """Apply changed dynamic parameters (pairing slop, merge radius, outlier distance)."""
+        with self._lock:
+            self._pairer.slop = settings.pair_slop
+            self._acc.merge_radius = settings.merge_radius
+            self._acc.outlier_distance = settings.outlier_distance
+
+    def fiducial_set(self) -> FiducialSet:
+        """The enabled fiducials now (for a model rebuild)."""
+        with self._lock:
+            return self._acc.fiducial_set()
+
+    def counters(self) -> Counters:
+        """Measurement and rejection counters now."""
+        with self._lock:
+            return Counters(self._acc.n_measurements, dict(self._acc.rejected),
+                            self._acc.n_disabled)
+
+    def close(self) -> None:
+        """Close the journal."""
+        with self._lock:
+            if self._journal is not None:
+                self._journal.close()

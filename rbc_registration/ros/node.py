@@ -1,0 +1,318 @@
+"""``registration_node``: live registration of a working frame (tracker) to a destination frame
+(robot / world) from fiducial pairs, improved by restoring the rigid-body condition.
+
+Callbacks convert messages to numpy, call :mod:`rbc_registration.core`, convert back and
+publish. The served model is an immutable :class:`~rbc_registration.ros.worker.ModelState`
+swapped atomically by the recompute thread, so services never wait for a recompute. See
+msg_docs/README.md for every topic, service, parameter and frame.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Optional
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PointStamped, TransformStamped
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.logging import get_logger
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.pairing import DESTINATION, WORKING, StampPairer
+from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus
+from rbc_registration_interfaces.srv import CorrectTarget, CorrectTargets, SetFiducialEnabled
+
+from . import conversions as conv
+from . import params, persistence, reports
+from .ingest import Ingest
+from .worker import EMPTY_STATE, ModelState, RecomputeWorker, build_state
+
+try:  # tf2_ros is optional (not on PyPI): without it no static tf is broadcast.
+    from tf2_ros import StaticTransformBroadcaster
+except ImportError:  # pragma: no cover - depends on the installation
+    StaticTransformBroadcaster = None
+
+LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+INPUT = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                   reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+RECOMPUTE_TIMEOUT_S = 60.0
+
+
+class RegistrationNode(Node):
+    """The registration node (see the module docstring and msg_docs/README.md).
+
+    :raises ValueError: when a parameter's starting value is invalid or the journal in
+        ``state_dir`` was written with other frames / another dimension.
+    """
+
+    def __init__(self, node_name: str = "registration_node", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._settings = params.declare(self)
+        s = self._settings
+        self._pub_lock = threading.Lock()
+        self._state: ModelState = EMPTY_STATE
+        self._generation = 0  # bumped by ~/reset: a rebuild of an older generation is dropped
+        self.rebuilds = 0     # models built so far (for tests and diagnostics)
+        accumulator = FiducialAccumulator(s.dimension, s.working_frame, s.destination_frame,
+                                          s.merge_radius, s.outlier_distance)
+        journal = None
+        if s.state_dir:
+            journal = persistence.Journal(s.state_dir, {"working_frame": s.working_frame,
+                                                        "destination_frame": s.destination_frame,
+                                                        "dimension": s.dimension},
+                                          fsync=s.journal_fsync)
+        self._ingest = Ingest(accumulator, StampPairer(s.pair_slop, s.point_buffer), journal,
+                              self.get_logger())
+        restored = self._ingest.restore()
+
+        self._tf = StaticTransformBroadcaster(self) if StaticTransformBroadcaster else None
+        self._pub_transform = self.create_publisher(TransformStamped, "~/transform", LATCHED)
+        self._pub_transform_u = self.create_publisher(TransformStamped, "~/transform_uncorrected",
+                                                      LATCHED)
+        self._pub_status = self.create_publisher(RegistrationStatus, "~/status", LATCHED)
+        self._pub_markers = self.create_publisher(MarkerArray, "~/markers", LATCHED)
+        self._pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+
+        inputs = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(FiducialPair, "~/fiducial_pairs", self._on_fiducial_pair, INPUT,
+                                 callback_group=inputs)
+        self.create_subscription(PointStamped, "~/working_point", self._on_working_point, INPUT,
+                                 callback_group=inputs)
+        self.create_subscription(PointStamped, "~/destination_point", self._on_destination_point,
+                                 INPUT, callback_group=inputs)
+        services = ReentrantCallbackGroup()
+        for srv_type, name, callback in (
+                (CorrectTarget, "~/correct_target", self._on_correct_target),
+                (CorrectTargets, "~/correct_targets", self._on_correct_targets),
+                (SetFiducialEnabled, "~/set_fiducial_enabled", self._on_set_fiducial_enabled),
+                (Trigger, "~/reset", self._on_reset),
+                (Trigger, "~/recompute", self._on_recompute),
+                (Trigger, "~/save", self._on_save)):
+            self.create_service(srv_type, name, callback, callback_group=services)
+        self.create_timer(s.status_period, self._publish_status,
+                          callback_group=MutuallyExclusiveCallbackGroup())
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._on_parameters_set)
+
+        self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
+                                       self._on_worker_error)
+        if restored:
+            self._worker.request_now()
+        self._publish_status()
+        self.get_logger().info(
+            f"registering {s.working_frame!r} -> {s.destination_frame!r} ({s.dimension}D); "
+            f"state_dir {s.state_dir or '(none: no persistence)'}; restored {restored} "
+            f"measurements; static tf {'on' if self._tf else 'off (tf2_ros not installed)'}")
+
+    # -- inputs -------------------------------------------------------------------------------
+    def _on_fiducial_pair(self, msg: FiducialPair) -> None:
+        if self._ingest.measurement(conv.fiducial_pair_to_args(msg)):
+            self._worker.notify()
+
+    def _on_working_point(self, msg: PointStamped) -> None:
+        if self._ingest.point(WORKING, *conv.point_stamped_to_tuple(msg)):
+            self._worker.notify()
+
+    def _on_destination_point(self, msg: PointStamped) -> None:
+        if self._ingest.point(DESTINATION, *conv.point_stamped_to_tuple(msg)):
+            self._worker.notify()
+
+    # -- model --------------------------------------------------------------------------------
+    @property
+    def state(self) -> ModelState:
+        """The model state currently served (immutable)."""
+        return self._state
+
+    def _rebuild(self) -> None:
+        generation = self._generation
+        self.rebuilds += 1
+        fiducials = self._ingest.fiducial_set()
+        state = build_state(fiducials, self._settings, self.get_clock().now().nanoseconds)
+        with self._pub_lock:
+            if generation != self._generation:
+                return
+            self._state = state
+        if state.error:
+            self.get_logger().warning(state.error)
+        self._publish_model(state)
+
+    def _on_worker_error(self, exc: BaseException) -> None:
+        self.get_logger().error(f"recompute failed: {type(exc).__name__}: {exc}")
+
+    def _publish_model(self, state: ModelState) -> None:
+        s = self._settings
+        now = self.get_clock().now().to_msg()
+        with self._pub_lock:
+            if state.model is not None:
+                corrected = conv.registration_to_transform(
+                    state.model.corrected, s.destination_frame, s.working_frame, now)
+                uncorrected = conv.registration_to_transform(
+                    state.model.uncorrected, s.destination_frame, s.working_frame, now)
+                self._pub_transform.publish(corrected)
+                self._pub_transform_u.publish(uncorrected)
+                if self._tf is not None and s.tf_broadcast != "none":
+                    self._tf.sendTransform(corrected if s.tf_broadcast == "corrected"
+                                           else uncorrected)
+            self._pub_markers.publish(reports.markers_msg(state, s, now))
+        self._publish_status()
+        if s.state_dir:
+            self._save(state)
+
+    def status(self) -> RegistrationStatus:
+        """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
+        return reports.status_msg(self._state, self._settings, self._ingest.counters(),
+                                  self.get_clock().now().to_msg())
+
+    def _publish_status(self) -> None:
+        status = self.status()
+        with self._pub_lock:
+            self._pub_status.publish(status)
+            self._pub_diagnostics.publish(reports.diagnostics_msg(
+                status, self.get_name(), status.header.stamp, self._ingest.journal_error))
+
+    def _save(self, state: ModelState) -> str:
+        path = persistence.snapshot_path(self._settings.state_dir)
+        persistence.write_atomic(path, reports.snapshot_json(state, self.status()))
+        return path
+
+    # -- services -----------------------------------------------------------------------------
+    def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str]:
+        """Answer targets from the current model: (results, "") or ([], reason)."""
+        state, s = self._state, self._settings
+        if state.model is None:
+            return [], f"no model yet: {state.error}"
+        try:
+            points, z = conv.targets_to_array(targets, s.working_frame, s.dimension)
+            tc = state.model.correct(points)
+        except ValueError as exc:
+            return [], str(exc)
+        applied = params.corrections_applied(s.apply_corrections, state.model.recommendation)
+        return conv.target_corrections_to_msgs(tc, z, applied, s.destination_frame,
+                                               [t.header.stamp for t in targets]), ""
+
+    def _on_correct_target(self, request: CorrectTarget.Request,
+                           response: CorrectTarget.Response) -> CorrectTarget.Response:
+        results, error = self._correct([request.target])
+        if error:
+            response.success, response.message = False, error
+            return response
+        conv.fill_correct_target_response(response, results[0])
+        response.message = self._answer_note(results[0].correction_applied)
+        return response
+
+    def _on_correct_targets(self, request: CorrectTargets.Request,
+                            response: CorrectTargets.Response) -> CorrectTargets.Response:
+        if not request.targets:
+            response.success, response.message = True, "no targets"
+            return response
+        results, error = self._correct(list(request.targets))
+        response.success, response.results = not error, results
+        response.message = error or self._answer_note(results[0].correction_applied)
+        return response
+
+    def _answer_note(self, applied: bool) -> str:
+        model = self._state.model
+        return (f"corrections {'applied' if applied else 'not applied'} (mode "
+                f"{self._settings.apply_corrections}, recommendation {model.recommendation}, "
+                f"rho {model.rho if model.rho is not None else float('nan'):.3g})")
+
+    def _on_set_fiducial_enabled(self, request: SetFiducialEnabled.Request,
+                                 response: SetFiducialEnabled.Response) -> Any:
+        response.success, response.message = self._ingest.set_enabled(request.fiducial_id,
+                                                                       request.enabled)
+        if response.success:
+            self._worker.notify()
+        return response
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        with self._pub_lock:
+            self._generation += 1
+            self._state = EMPTY_STATE
+        response.success, response.message = self._ingest.reset()
+        self._publish_status()
+        self._pub_markers.publish(reports.markers_msg(EMPTY_STATE, self._settings,
+                                                      self.get_clock().now().to_msg()))
+        return response
+
+    def _on_recompute(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        finished = self._worker.wait(self._worker.request_now(), RECOMPUTE_TIMEOUT_S)
+        state = self._state
+        response.success = finished and state.model is not None
+        response.message = (state.error or f"model rebuilt from {len(state.fiducials.ids)} "
+                            f"fiducials") if finished else "recompute timed out"
+        return response
+
+    def _on_save(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        if not self._settings.state_dir:
+            response.success, response.message = False, "state_dir is not set: nothing to save to"
+            return response
+        try:
+            response.success, response.message = True, f"saved {self._save(self._state)}"
+        except OSError as exc:
+            response.success, response.message = False, f"save failed: {exc}"
+        return response
+
+    # -- parameters ---------------------------------------------------------------------------
+    def _on_set_parameters(self, parameters: list[Parameter]) -> Any:
+        changes = {p.name: p.value for p in parameters if p.name in params.SPECS}
+        try:
+            self._settings.replace(**changes)
+        except ValueError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _on_parameters_set(self, parameters: list[Parameter]) -> None:
+        changes = {p.name: p.value for p in parameters if p.name in params.SPECS}
+        if not changes:
+            return
+        self._settings = self._settings.replace(**changes)
+        self._ingest.configure(self._settings)
+        self.get_logger().info(f"parameters changed: {changes}")
+        self._worker.notify()
+
+    def destroy_node(self) -> None:
+        """Stop the recompute thread, close the journal, then destroy the node."""
+        self._worker.stop()
+        self._ingest.close()
+        super().destroy_node()
+
+
+def main(args: Optional[list[str]] = None) -> None:
+    """Console script ``registration_node``: spin the node on a multi-threaded executor.
+
+    Exits with status 1 when a parameter is invalid or ``state_dir`` holds a journal of
+    another setup (the reason is logged).
+    """
+    rclpy.init(args=args)
+    node: Optional[RegistrationNode] = None
+    code = 0
+    try:
+        node = RegistrationNode()
+        executor = MultiThreadedExecutor(num_threads=2)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as exc:
+        get_logger("registration_node").fatal(f"cannot start: {exc}")
+        code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if code:
+        raise SystemExit(code)
+
+
+if __name__ == "__main__":
+    main()

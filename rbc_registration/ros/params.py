@@ -1,0 +1,217 @@
+"""Parameters of ``registration_node``: the table of names, defaults, ranges and descriptions, their
+validation (pure Python, tested without ROS) and the immutable :class:`Settings` snapshot.
+
+Units: metres and seconds (REP 103). msg_docs/README.md renders the same table.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Mapping, NamedTuple, Optional
+
+
+class Spec(NamedTuple):
+    """One parameter: default value, description, whether it is read-only after start, the
+    closed range ``(low, high)`` of a number, whether ``low`` itself is excluded, and the
+    allowed strings."""
+
+    default: Any
+    description: str
+    read_only: bool = False
+    low: Optional[float] = None
+    high: Optional[float] = None
+    low_exclusive: bool = False
+    choices: tuple[str, ...] = ()
+
+
+RESTORATIONS = ("iterative", "closed-form")
+INTERPOLATIONS = ("paper", "kriging")
+CORRECTION_MODES = ("auto", "on", "off")
+TF_MODES = ("corrected", "uncorrected", "none")
+
+SPECS: dict[str, Spec] = {
+    "working_frame": Spec("tracker", "Frame the working points (fiducials, targets) are measured "
+                          "in, e.g. the tracker. Read-only.", read_only=True),
+    "destination_frame": Spec("world", "Frame the registration maps into, e.g. the robot base or "
+                              "world. Read-only.", read_only=True),
+    "dimension": Spec(3, "3, or 2 to register x, y only as in the paper (z of a target is "
+                      "passed through unchanged). Read-only.", read_only=True, low=2, high=3),
+    "restoration": Spec("iterative", "How the rigid-body condition is restored: 'iterative' "
+                        "(the paper's steps) or 'closed-form'.", choices=RESTORATIONS),
+    "restoration_steps": Spec(2, "Steps of the iterative restoration (the paper uses 2).",
+                              low=1, high=20),
+    "interpolation": Spec("paper", "Interpolation of the fiducial corrections at a target "
+                          "(paper eq. 5): 'paper' or 'kriging'.", choices=INTERPOLATIONS),
+    "sigma": Spec(0.0, "Known measurement noise sigma per axis in the working frame [m]; 0 = "
+                  "unknown: estimated from repeats when a fiducial has >= 2.", low=0.0, high=1.0),
+    "rho_reject": Spec(1.0, "rho = sigma_L0 / sigma below this: corrections are not applied "
+                       "(paper: rho < 1 makes registration worse). Must be <= rho_apply.",
+                       low=0.0, high=1e6),
+    "rho_apply": Spec(2.5, "rho at or above this: corrections are applied in 'auto' mode "
+                      "(paper: rho >= 2.5 is beneficial).", low=0.0, high=1e6),
+    "apply_corrections": Spec("auto", "'auto': apply corrections only when the recommendation "
+                              "is 'apply'; 'on' / 'off' force it.", choices=CORRECTION_MODES),
+    "min_fiducials": Spec(4, "Enabled fiducials needed before a model is built.",
+                          low=3, high=1_000_000),
+    "pair_slop": Spec(0.02, "Largest stamp difference [s] between a ~/working_point and a "
+                      "~/destination_point to pair them.", low=0.0, high=10.0, low_exclusive=True),
+    "merge_radius": Spec(0.005, "A pair without an id joins the fiducial whose mean "
+                         "destination point is nearest within this distance [m], else a new "
+                         "auto-NNNN fiducial.", low=0.0, high=10.0, low_exclusive=True),
+    "outlier_distance": Spec(0.01, "A measurement farther than this [m] from the mean of its "
+                             "fiducial's earlier repeats (either frame) is rejected; 0 = off.",
+                             low=0.0, high=100.0),
+    "debounce_period": Spec(0.2, "Recompute once no measurement arrived for this long [s] "
+                            "(at the latest 10x this after the first pending one).",
+                            low=0.0, high=60.0),
+    "point_buffer": Spec(100, "Unmatched ~/working_point or ~/destination_point messages kept "
+                         "per stream for pairing. Read-only.", read_only=True, low=1,
+                         high=100_000),
+    "state_dir": Spec("", "Directory of the measurement journal and the calibration snapshot "
+                      "('~' expanded); empty = no persistence. Read-only.", read_only=True),
+    "journal_fsync": Spec(False, "fsync the journal after every record (survives power loss; "
+                          "slower). Default: flush to the OS per record (survives SIGKILL). "
+                          "Read-only.", read_only=True),
+    "status_period": Spec(1.0, "Period [s] of ~/status and /diagnostics besides each "
+                          "recompute. Read-only.", read_only=True, low=0.01, high=3600.0),
+    "tf_broadcast": Spec("corrected", "Which registration to broadcast as a static tf where "
+                         "tf2_ros is installed: 'corrected', 'uncorrected' or 'none'.",
+                         choices=TF_MODES),
+    "marker_scale": Spec(0.01, "Diameter [m] of the fiducial spheres in ~/markers.",
+                         low=0.0, high=10.0, low_exclusive=True),
+    "marker_arrow_gain": Spec(100.0, "Correction arrows in ~/markers are drawn this many times "
+                              "longer than the correction (dimensionless).", low=0.0, high=1e6),
+}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """An immutable snapshot of all parameters (see :data:`SPECS` for meanings and units)."""
+
+    working_frame: str
+    destination_frame: str
+    dimension: int
+    restoration: str
+    restoration_steps: int
+    interpolation: str
+    sigma: float
+    rho_reject: float
+    rho_apply: float
+    apply_corrections: str
+    min_fiducials: int
+    pair_slop: float
+    merge_radius: float
+    outlier_distance: float
+    debounce_period: float
+    point_buffer: int
+    state_dir: str
+    journal_fsync: bool
+    status_period: float
+    tf_broadcast: str
+    marker_scale: float
+    marker_arrow_gain: float
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> "Settings":
+        """Build from ``{name: value}`` (missing names take their defaults).
+
+        :raises ValueError: naming the first invalid value.
+        """
+        merged = {name: spec.default for name, spec in SPECS.items()}
+        merged.update(values)
+        error = validate(merged)
+        if error:
+            raise ValueError(error)
+        return cls(**{f.name: merged[f.name] for f in fields(cls)})
+
+    def replace(self, **changes: Any) -> "Settings":
+        """A copy with ``changes`` applied and validated.
+
+        :raises ValueError: naming the first invalid value.
+        """
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values.update(changes)
+        return Settings.from_mapping(values)
+
+
+def validate_one(name: str, value: Any) -> Optional[str]:
+    """Return why ``value`` is not valid for parameter ``name``, or ``None`` when it is."""
+    spec = SPECS.get(name)
+    if spec is None:
+        return f"unknown parameter {name!r}"
+    kind = type(spec.default)
+    if kind is bool:
+        if not isinstance(value, bool):
+            return f"{name} must be a bool, got {value!r}"
+        return None
+    if kind is str:
+        if not isinstance(value, str):
+            return f"{name} must be a string, got {value!r}"
+        if spec.choices and value not in spec.choices:
+            return f"{name} must be one of {', '.join(spec.choices)}; got {value!r}"
+        if name.endswith("_frame") and (not value or value.startswith("/") or " " in value):
+            return f"{name} must be a non-empty frame id without a leading '/' or spaces, " \
+                   f"got {value!r}"
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f"{name} must be a number, got {value!r}"
+    if kind is int and not isinstance(value, int):
+        return f"{name} must be an integer, got {value!r}"
+    if not math.isfinite(value):
+        return f"{name} must be finite, got {value!r}"
+    low_ok = value > spec.low if spec.low_exclusive else value >= spec.low
+    if not low_ok or value > spec.high:
+        bracket = "(" if spec.low_exclusive else "["
+        return f"{name} must be in {bracket}{spec.low:g}, {spec.high:g}], got {value!r}"
+    return None
+
+
+def validate(values: Mapping[str, Any]) -> Optional[str]:
+    """Return why a full set of parameter values is not valid (each value, then the relations
+    between them), or ``None`` when it is."""
+    for name, value in values.items():
+        error = validate_one(name, value)
+        if error:
+            return error
+    if values.get("rho_reject", 0.0) > values.get("rho_apply", math.inf):
+        return (f"rho_reject ({values['rho_reject']:g}) must be <= rho_apply "
+                f"({values['rho_apply']:g})")
+    return None
+
+
+def corrections_applied(mode: str, recommendation: str) -> bool:
+    """Whether corrected targets are answered: ``mode`` 'on' / 'off' force it; 'auto' follows
+    the paper's rho rule, i.e. applies only when ``recommendation == "apply"``."""
+    if mode == "on":
+        return True
+    if mode == "off":
+        return False
+    return recommendation == "apply"
+
+
+def declare(node: Any) -> Settings:
+    """Declare every parameter on ``node`` (an ``rclpy.node.Node``) with its descriptor and
+    return the validated :class:`Settings` (overrides from the command line or a YAML file
+    included).
+
+    :raises ValueError: when a starting value is invalid (the node refuses to start).
+    """
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    values = {}
+    for name, spec in SPECS.items():
+        desc = ParameterDescriptor(name=name, description=spec.description,
+                                   read_only=spec.read_only)
+        if spec.choices:
+            desc.additional_constraints = "one of: " + ", ".join(spec.choices)
+        if isinstance(spec.default, int) and not isinstance(spec.default, bool):
+            desc.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
+                                               step=1)]
+        elif isinstance(spec.default, float):
+            desc.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
+                                                            to_value=float(spec.high), step=0.0)]
+            if spec.low_exclusive:
+                desc.additional_constraints = f"> {spec.low:g}"
+        values[name] = node.declare_parameter(name, spec.default, desc).value
+    return Settings.from_mapping(values)

@@ -1,0 +1,197 @@
+#!/usr/bin/env bash
+# Set up (or update) the development venv at <repo>/.venv, idempotently:
+#   1. a Python 3.11 venv;
+#   2. ROS 2 Kilted from PyPI wheels plus the project's and the tests' dependencies, pinned by
+#      requirements.txt and constraints.txt;
+#   3. msg_docs/rbc_registration_interfaces built with cmake and installed INTO the venv prefix
+#      (libraries in .venv/lib, Python modules in .venv/lib/python3.11/site-packages);
+#   4. `pip install -e .` of rbc_registration.
+# Each step is skipped while a stamp keyed on a hash of its inputs matches, so a second run takes
+# about a second.
+#
+# How the generated typesupport libraries are found: the ROS wheels install
+# ros_wheels_bootstrapper.pth, which re-executes every Python of the venv once (same PID) with
+# LD_LIBRARY_PATH = <venv>/lib + site-packages/ros_*.libs. Installing the interface package with
+# CMAKE_INSTALL_PREFIX=<venv> puts its lib*.so in <venv>/lib, which is on that path.
+#
+# Usage: scripts/bootstrap.sh [--freeze]
+#   --freeze  after setting up, rewrite constraints.txt from what is installed in the venv.
+# Environment: RBC_VENV (default <repo>/.venv), RBC_PYTHON (default python3.11).
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${RBC_VENV:-$ROOT/.venv}"
+PYTHON="${RBC_PYTHON:-python3.11}"
+IFACE_SRC="$ROOT/msg_docs/rbc_registration_interfaces"
+STAMPS="$VENV/.rbc-stamps"
+LOGS="$VENV/.rbc-logs"
+FREEZE=0
+for arg in "$@"; do
+  case "$arg" in
+    --freeze) FREEZE=1 ;;
+    -h|--help) sed -n '2,21p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "bootstrap: unknown argument: $arg" >&2; exit 2 ;;
+  esac
+done
+
+say() { echo "bootstrap: $*"; }
+die() { echo "bootstrap: ERROR: $*" >&2; exit 1; }
+trap 'echo "bootstrap: ERROR: command failed (line $LINENO): $BASH_COMMAND" >&2' ERR
+
+# A sourced ROS installation or another venv would mix its Python and libraries with ours.
+if [ -n "${ROS_DISTRO:-}" ]; then
+  say "note: ROS_DISTRO=$ROS_DISTRO is set; the venv ignores that installation"
+fi
+unset PYTHONPATH AMENT_PREFIX_PATH CMAKE_PREFIX_PATH COLCON_PREFIX_PATH _ROS_WHEELS_BOOTSTRAP_COMPLETE
+export PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=1
+
+# Run a command quietly; on failure show the end of its log.
+run_logged() {
+  local name="$1"; shift
+  mkdir -p "$LOGS"
+  if ! "$@" >"$LOGS/$name.log" 2>&1; then
+    tail -n 40 "$LOGS/$name.log" >&2
+    die "$name failed (full log: $LOGS/$name.log)"
+  fi
+}
+
+hash_of() {  # hash_of TEXT FILE... -> sha256 of TEXT and the files' names and contents
+  local text="$1"; shift
+  { echo "$text"; for f in "$@"; do echo "== ${f#"$ROOT"/}"; cat "$f"; done; } | sha256sum | cut -d' ' -f1
+}
+stamp_ok() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+stamp_set() { mkdir -p "$STAMPS"; echo "$2" >"$STAMPS/$1"; }
+
+command -v "$PYTHON" >/dev/null 2>&1 || die "$PYTHON not found (install Python 3.11 with its venv module)"
+PY_VERSION="$("$PYTHON" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
+[ "$PY_VERSION" = "3.11" ] || die "$PYTHON is Python $PY_VERSION; the ROS wheels need 3.11"
+
+# One bootstrap at a time per venv (engineers and CI may run tests concurrently in one tree).
+mkdir -p "$(dirname "$VENV")"
+exec 9>"$VENV.lock"
+flock 9
+
+VPY="$VENV/bin/python"
+if [ ! -x "$VPY" ] || [ "$("$VPY" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null)" != "3.11" ]; then
+  say "creating venv $VENV"
+  rm -rf "$VENV"
+  "$PYTHON" -m venv "$VENV"
+fi
+export PATH="$VENV/bin:$PATH"
+
+SELF_HASH="$(hash_of "python=$PY_VERSION venv=$VENV" "${BASH_SOURCE[0]}")"
+DEPS_HASH="$(hash_of "$SELF_HASH" "$ROOT/requirements.txt" "$ROOT/constraints.txt")"
+IFACE_FILES=("$IFACE_SRC/CMakeLists.txt" "$IFACE_SRC/package.xml")
+while IFS= read -r f; do IFACE_FILES+=("$f"); done < <(
+  find "$IFACE_SRC/msg" "$IFACE_SRC/srv" "$IFACE_SRC/action" -type f \
+    \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \) 2>/dev/null | LC_ALL=C sort)
+IFACE_HASH="$(hash_of "$DEPS_HASH" "$ROOT/scripts/patch_wheel_cmake.sh" "${IFACE_FILES[@]}")"
+PROJECT_HASH="$(hash_of "$DEPS_HASH" "$ROOT/setup.py" "$ROOT/setup.cfg" "$ROOT/package.xml")"
+
+check_imports() {
+  "$VPY" -c 'import rclpy, numpy, scipy, rosbags
+from rbc_registration_interfaces.msg import FiducialPair
+from rbc_registration_interfaces.srv import CorrectTarget
+import rbc_registration' >/dev/null 2>&1 && [ -x "$VENV/bin/rbc-registration" ]
+}
+
+if stamp_ok deps "$DEPS_HASH" && stamp_ok interfaces "$IFACE_HASH" \
+    && stamp_ok project "$PROJECT_HASH" && check_imports; then
+  say "venv up to date ($VENV)"
+  if [ "$FREEZE" = 0 ]; then exit 0; fi
+fi
+
+# --- 2. Python packages ------------------------------------------------------------------------
+if ! stamp_ok deps "$DEPS_HASH"; then
+  say "installing ROS 2 wheels and Python dependencies (about 30 s)"
+  # `pip install -e . --no-build-isolation` below needs setuptools >= 64 (PEP 660) in the venv.
+  if ! "$VPY" -c 'import setuptools, sys; sys.exit(int(setuptools.__version__.split(".")[0]) < 64)' \
+      >/dev/null 2>&1; then
+    run_logged pip-setuptools "$VPY" -m pip install 'setuptools>=64,<81'
+  fi
+  run_logged pip-install "$VPY" -m pip install -r "$ROOT/requirements.txt" -c "$ROOT/constraints.txt"
+  rm -f "$STAMPS/interfaces"  # reinstalled wheels bring back the unpatched cmake files
+  stamp_set deps "$DEPS_HASH"
+fi
+
+# --- 3. Interface package ----------------------------------------------------------------------
+if ! stamp_ok interfaces "$IFACE_HASH"; then
+  say "building rbc_registration_interfaces with cmake (about 20 s)"
+  if ! command -v cmake >/dev/null 2>&1; then
+    say "cmake not found: installing it from PyPI into the venv"
+    run_logged pip-cmake "$VPY" -m pip install 'cmake>=3.22,<4'
+  fi
+  command -v c++ >/dev/null 2>&1 && command -v cc >/dev/null 2>&1 \
+    || die "a C and C++ compiler is needed (Debian: apt-get install build-essential)"
+  export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV"
+  # The wheels' exported cmake targets name the include dirs of the machine that built them.
+  run_logged patch-wheel-cmake bash "$ROOT/scripts/patch_wheel_cmake.sh" "$VENV"
+
+  BUILD="$VENV/build/rbc_registration_interfaces"
+  if [ -f "$BUILD/install_manifest.txt" ]; then  # remove what the previous build installed
+    xargs -d '\n' rm -f <"$BUILD/install_manifest.txt"
+  fi
+  rm -rf "$BUILD" "$VENV/lib/python3.11/site-packages/rbc_registration_interfaces"
+  mkdir -p "$BUILD"
+  run_logged cmake-configure cmake -S "$IFACE_SRC" -B "$BUILD" \
+    -DCMAKE_BUILD_TYPE=Release \
+    -DCMAKE_PREFIX_PATH="$VENV" \
+    -DCMAKE_INSTALL_PREFIX="$VENV" \
+    -DPython3_EXECUTABLE="$VPY" \
+    -DPython3_FIND_VIRTUALENV=ONLY \
+    -DBUILD_TESTING=OFF
+  run_logged cmake-build cmake --build "$BUILD" --parallel "$(nproc)"
+  run_logged cmake-install cmake --install "$BUILD"
+  "$VPY" -c 'from rbc_registration_interfaces.msg import FiducialPair
+from rbc_registration_interfaces.srv import CorrectTarget' \
+    || die "rbc_registration_interfaces was built but does not import"
+  stamp_set interfaces "$IFACE_HASH"
+fi
+
+# --- 4. The project, editable ------------------------------------------------------------------
+if ! stamp_ok project "$PROJECT_HASH" || ! check_imports; then
+  say "installing rbc_registration (pip install -e .)"
+  # --use-pep517: an editable wheel (PEP 660), so the console scripts land in .venv/bin; the legacy
+  # `setup.py develop` would follow setup.cfg and hide them in .venv/lib/rbc_registration.
+  rm -rf "$VENV/lib/rbc_registration"
+  run_logged pip-editable "$VPY" -m pip install --no-deps --no-build-isolation --use-pep517 \
+    -e "$ROOT"
+  # An editable install skips setup.py's data_files; mirror them as symlinks (like colcon's
+  # --symlink-install) so ament_index finds package.xml, launch/ and config/ in the venv prefix.
+  SHARE="$VENV/share/rbc_registration"
+  mkdir -p "$SHARE" "$VENV/share/ament_index/resource_index/packages"
+  for item in package.xml launch config; do ln -sfn "$ROOT/$item" "$SHARE/$item"; done
+  : >"$VENV/share/ament_index/resource_index/packages/rbc_registration"
+  check_imports || {
+    "$VPY" -c 'import rclpy, numpy, scipy, rosbags
+from rbc_registration_interfaces.msg import FiducialPair
+import rbc_registration' || true
+    die "imports fail after set-up"
+  }
+  stamp_set project "$PROJECT_HASH"
+fi
+
+if [ "$FREEZE" = 1 ]; then
+  say "writing constraints.txt"
+  {
+    echo "# Every distribution in .venv pinned to the version tested (transitive ones included)."
+    echo "# Regenerate after changing requirements.txt: scripts/bootstrap.sh --freeze"
+    "$VPY" - <<'EOF'
+import importlib.metadata as md
+pins = {}
+for dist in md.distributions():
+    name = dist.metadata['Name']
+    # Only what pip installed: the ROS wheels also drop egg-info records (rclpy, std_msgs, ...)
+    # that are not distributions on any index; the editable project is not pinned either.
+    if (dist.read_text('INSTALLER') or '').strip() != 'pip' or dist.read_text('direct_url.json'):
+        continue
+    if name.lower() in ('pip', 'setuptools', 'wheel'):
+        continue
+    pins[name.lower()] = f'{name}=={dist.version}'
+print('\n'.join(sorted(pins.values(), key=str.lower)))
+EOF
+  } >"$ROOT/constraints.txt.new"
+  mv "$ROOT/constraints.txt.new" "$ROOT/constraints.txt"
+  say "constraints.txt written; the next run reinstalls against it"
+fi
+say "ready: $VENV (source scripts/env.sh to use it)"

@@ -1,0 +1,34 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'rbc_registration'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/launch', glob('launch/*.py')),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+    ],
+    python_requires='>=3.10',
+    install_requires=['numpy', 'scipy', 'matplotlib', 'rosbags'],
+    extras_require={'test': ['pytest', 'hypothesis']},
+    zip_safe=True,
+    maintainer='rbc_registration maintainers',
+    maintainer_email='maintainer@example.com',
+    description=(
+        'Rigid-body registration from fiducials affected by bias and noise, improved by '
+        'restoring the rigid-body condition (ROS 2 node, CLI and library).'
+    ),
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'rbc-registration = rbc_registration.cli:main',
+            'registration_node = rbc_registration.ros.node:main',
+        ],
+    },
+)

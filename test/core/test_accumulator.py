@@ -1,0 +1,209 @@
+"""Tests of the pure fiducial accumulator (no rclpy)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from rbc_registration.core.accumulator import (REJECT_REASONS, EnabledChange, FiducialAccumulator,
+                                               Measurement, RejectedMeasurement)
+
+
+def make(dimension=3, merge_radius=0.005, outlier_distance=0.002):
+    return FiducialAccumulator(dimension, "tracker", "world", merge_radius, outlier_distance)
+
+
+def grid(rng, n=12):
+    dest = np.array([[x, y, z] for x in (0.0, 0.1, 0.2) for y in (0.0, 0.1) for z in (0.0, 0.05)])
+    return dest[:n], dest[:n] + 1.0 + rng.normal(0, 1e-4, (n, 3))
+
+
+def test_explicit_ids_repeats_and_means():
+    acc = make()
+    assert acc.add("a", [0, 0, 0], [1, 1, 1]) == "a"
+    assert acc.add("a", [0.001, 0, 0], [1.001, 1, 1]) == "a"
+    assert acc.add("b", [0.1, 0, 0], [1.1, 1, 1]) == "b"
+    fs = acc.fiducial_set()
+    assert fs.ids == ("a", "b")
+    np.testing.assert_allclose(fs.working, [[0.0005, 0, 0], [0.1, 0, 0]])
+    np.testing.assert_allclose(fs.destination, [[1.0005, 1, 1], [1.1, 1, 1]])
+    assert [r.shape for r in fs.working_repeats] == [(2, 3), (1, 3)]
+    assert fs.n_measurements == acc.n_measurements == 3
+
+
+def test_auto_ids_by_proximity_in_destination_frame():
+    acc = make(merge_radius=0.005, outlier_distance=0.01)
+    first = acc.add(None, [0, 0, 0], [1, 1, 1])
+    assert first == "auto-0000"
+    # 3 mm away in the destination frame: the same hole, although the working point differs.
+    assert acc.add("", [0.001, 0, 0], [1.003, 1, 1]) == first
+    assert acc.add(None, [0.1, 0, 0], [1.1, 1, 1]) == "auto-0001"
+    # An explicit id is also found by proximity.
+    acc.add("H1", [0.2, 0, 0], [1.2, 1, 1])
+    assert acc.add(None, [0.2, 0, 0], [1.2, 1.001, 1]) == "H1"
+    assert acc.fiducial_set().ids == ("auto-0000", "auto-0001", "H1")
+    assert acc.fiducial_set().working_repeats[0].shape == (2, 3)
+
+
+def test_auto_id_skips_an_explicit_id_of_the_same_form():
+    acc = make()
+    acc.add("auto-0000", [0, 0, 0], [1, 1, 1])
+    assert acc.add(None, [0.1, 0, 0], [1.1, 1, 1]) == "auto-0001"
+
+
+def test_dimension_2_uses_x_y_only():
+    acc = make(dimension=2)
+    acc.add("a", [0, 0, 5.0], [1, 1, -3.0])
+    acc.add("a", [0, 0, 9.0], [1, 1, 7.0])   # z differs widely: ignored, not an outlier
+    acc.add("b", [0.1, 0.2], [1.1, 1.2])      # 2 coordinates accepted in 2D
+    fs = acc.fiducial_set()
+    assert fs.working.shape == (2, 2)
+    np.testing.assert_allclose(fs.destination, [[1, 1], [1.1, 1.2]])
+
+
+@pytest.mark.parametrize("kwargs, reason", [
+    (dict(working_frame="camera"), "frame"),
+    (dict(destination_frame="map"), "frame"),
+    (dict(working_xyz=[0, math.nan, 0]), "nonfinite"),
+    (dict(destination_xyz=[0, 0, math.inf]), "nonfinite"),
+    (dict(working_xyz=[0, 0]), "malformed"),          # 2 coordinates in 3D
+    (dict(working_xyz="abc"), "malformed"),
+    (dict(fiducial_id=7), "malformed"),
+    (dict(fiducial_id="a\nb"), "malformed"),
+    (dict(stamp_s=math.nan), "malformed"),
+])
+def test_each_rejection_reason_is_counted_and_nothing_is_added(kwargs, reason):
+    acc = make()
+    acc.add("a", [0, 0, 0], [1, 1, 1])
+    args = dict(fiducial_id="a", working_xyz=[0, 0, 0], destination_xyz=[1, 1, 1],
+                working_frame="tracker", destination_frame="world", stamp_s=1.0)
+    args.update(kwargs)
+    before = acc.state_digest()
+    with pytest.raises(RejectedMeasurement) as info:
+        acc.add(**args)
+    assert info.value.reason == reason
+    assert info.value.message in str(info.value)
+    assert acc.rejected[reason] == 1 and acc.n_rejected == 1
+    assert acc.state_digest() == before and acc.n_measurements == 1
+
+
+def test_outlier_in_either_frame_is_rejected():
+    acc = make(outlier_distance=0.002)
+    acc.add("a", [0, 0, 0], [1, 1, 1])
+    with pytest.raises(RejectedMeasurement, match="working point is 0.005"):
+        acc.add("a", [0.005, 0, 0], [1, 1, 1])
+    with pytest.raises(RejectedMeasurement, match="destination point"):
+        acc.add("a", [0, 0, 0], [1, 1, 1.003])
+    assert acc.rejected["outlier"] == 2
+    acc.add("a", [0.001, 0, 0], [1, 1, 1.001])  # within the distance: a repeat
+
+
+def test_outlier_check_can_be_disabled():
+    acc = make(outlier_distance=0.0)
+    acc.add("a", [0, 0, 0], [1, 1, 1])
+    acc.add("a", [1, 0, 0], [1, 1, 1])
+    assert acc.n_rejected == 0
+
+
+def test_empty_frames_mean_the_defaults():
+    acc = make()
+    acc.add("a", [0, 0, 0], [1, 1, 1], "", "")
+    acc.add("a", [0, 0, 0], [1, 1, 1], "tracker", "world")
+    assert acc.n_measurements == 2
+
+
+def test_enable_disable():
+    acc = make()
+    for k in range(4):
+        acc.add(f"f{k}", [k * 0.1, 0, 0], [1 + k * 0.1, 1, 1])
+    acc.set_enabled("f1", False)
+    fs = acc.fiducial_set()
+    assert fs.ids == ("f0", "f2", "f3") and fs.disabled_ids == ("f1",)
+    acc.add("f1", [0.1, 0, 0], [1.1, 1, 1])  # still collected while disabled
+    acc.set_enabled("f1", True)
+    assert acc.fiducial_set().ids == ("f0", "f1", "f2", "f3")
+    assert acc.fiducial_set().working_repeats[1].shape == (2, 3)
+    with pytest.raises(KeyError, match="unknown fiducial id 'nope'"):
+        acc.set_enabled("nope", False)
+
+
+def test_restore_from_records_gives_identical_state():
+    rng = np.random.default_rng(0)
+    acc = make(merge_radius=0.01, outlier_distance=0.003)
+    dest, work = grid(rng)
+    records = []
+    for visit in range(3):
+        for k in range(len(dest)):
+            fid = None if k % 2 else f"H{k}"
+            w = work[k] + rng.normal(0, 2e-4, 3)
+            d = dest[k] + rng.normal(0, 2e-4, 3)
+            rec = acc.prepare(fid, w, d, stamp_s=visit * 100 + k)
+            acc.commit(rec)
+            records.append(rec)
+    with pytest.raises(RejectedMeasurement):
+        acc.add("H0", work[0] + 0.1, dest[0])
+    change = acc.prepare_enabled("H2", False)
+    acc.commit(change)
+    records.append(change)
+    # Replayed with different merge/outlier parameters: records carry their ids.
+    other = FiducialAccumulator(3, "tracker", "world", merge_radius=1e-6, outlier_distance=1e-9)
+    other.restore(records)
+    assert other.state_digest() == acc.state_digest()
+    a, b = acc.fiducial_set(), other.fiducial_set()
+    assert a.ids == b.ids and a.disabled_ids == b.disabled_ids == ("H2",)
+    np.testing.assert_array_equal(a.working, b.working)
+    np.testing.assert_array_equal(a.destination, b.destination)
+    # Auto ids continue identically after a restore.
+    assert other.add(None, [5, 5, 5], [9, 9, 9]) == acc.add(None, [5, 5, 5], [9, 9, 9])
+    assert other.rejected == dict.fromkeys(REJECT_REASONS, 0)
+
+
+def test_commit_rejects_records_of_another_dimension():
+    acc = make(dimension=2)
+    with pytest.raises(ValueError, match="expected 2"):
+        acc.commit(Measurement("a", (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 0.0))
+    with pytest.raises(ValueError, match="unknown fiducial id"):
+        acc.commit(EnabledChange("a", False))
+
+
+def test_clear_and_empty_set_shapes():
+    acc = make()
+    acc.add("a", [0, 0, 0], [1, 1, 1])
+    acc.clear()
+    fs = acc.fiducial_set()
+    assert fs.ids == () and fs.working.shape == (0, 3) and acc.n_measurements == 0
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(dimension=4), "dimension must be 2 or 3"),
+    (dict(working_frame=""), "working_frame must be a non-empty string"),
+    (dict(merge_radius=0.0), "merge_radius must be > 0"),
+    (dict(outlier_distance=-1.0), "outlier_distance must be >= 0"),
+    (dict(merge_radius=math.nan), "merge_radius"),
+])
+def test_constructor_validation(kwargs, match):
+    args = dict(dimension=3, working_frame="tracker", destination_frame="world",
+                merge_radius=0.005, outlier_distance=0.0)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        FiducialAccumulator(**args)
+
+
+def test_rejected_measurement_reason_is_checked():
+    with pytest.raises(ValueError, match="reason must be one of"):
+        RejectedMeasurement("bogus", "x")
+
+
+def test_fiducial_set_is_ready_for_build_model():
+    model = pytest.importorskip("rbc_registration.core.model")
+    rng = np.random.default_rng(1)
+    dest, work = grid(rng)
+    acc = make(outlier_distance=0.0)
+    for _ in range(2):
+        for k in range(len(dest)):
+            acc.add(f"H{k}", work[k] + rng.normal(0, 1e-5, 3), dest[k])
+    fs = acc.fiducial_set()
+    m = model.build_model(fs.working, fs.destination, model.ModelConfig(dimension=3),
+                          ids=list(fs.ids), working_repeats=list(fs.working_repeats))
+    assert tuple(m.ids) == fs.ids
+    assert m.sigma_source == "repeats"

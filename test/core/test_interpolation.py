@@ -1,0 +1,127 @@
+"""Target corrections: the paper's interpolation (eq. 5) and kriging."""
+
+import numpy as np
+import pytest
+
+from rbc_registration.core.interpolation import PaperInterpolator
+from rbc_registration.core.kriging import KrigingInterpolator
+
+
+def grid3():
+    return np.stack(np.meshgrid(*[np.arange(5.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
+
+
+def linear(p):
+    return p @ np.array([[0.1, 0.2, 0.3], [0.0, 0.1, 0.0], [0.2, 0.0, 0.1]]) + 0.05
+
+
+def test_tetrahedron_weights_reproduce_a_linear_field():
+    pts = grid3()
+    ip = PaperInterpolator(pts, linear(pts))
+    t = np.random.default_rng(0).uniform(0.2, 3.8, (50, 3))
+    res = ip(t)
+    assert res.inside_hull.all()
+    np.testing.assert_allclose(res.correction, linear(t), atol=1e-9)
+    idx, w, _ = ip.weights(t)
+    assert idx.shape == (50, 4)
+    np.testing.assert_allclose(w.sum(axis=1), 1.0)
+    assert (w > -1e-9).all()                     # barycentric: inside the tetrahedron
+    assert np.isnan(res.expected_error).all()
+
+
+def test_2d_uses_the_8_surrounding_grid_holes():
+    holes = np.stack(np.meshgrid(np.arange(9.0), np.arange(9.0), indexing="ij"), -1
+                     ).reshape(-1, 2) * 25.0
+    target = 40                                   # hole (4, 4), removed from the fiducials
+    fid = np.delete(holes, target, axis=0)
+    ip = PaperInterpolator(fid, np.zeros_like(fid))
+    idx, w, inside = ip.weights(holes[target:target + 1])
+    used = fid[idx[0][w[0] > 0]]
+    dist = np.linalg.norm(used - holes[target], axis=1)
+    assert len(used) == 8 and inside[0]
+    assert sorted(np.round(dist, 6)) == sorted([25.0] * 4 + [round(25 * np.sqrt(2), 6)] * 4)
+    assert w[0].sum() == pytest.approx(1.0)
+
+
+def test_target_on_a_fiducial_gets_its_correction():
+    pts = grid3()
+    eps = np.random.default_rng(1).normal(size=pts.shape)
+    grid2 = np.stack(np.meshgrid(np.arange(5.0), np.arange(5.0)), -1).reshape(-1, 2)
+    for ip_pts in (pts, grid2):
+        e = eps[:len(ip_pts), :ip_pts.shape[1]]
+        ip = PaperInterpolator(ip_pts, e)
+        np.testing.assert_allclose(ip(ip_pts[7:8]).correction, e[7:8], atol=1e-9)
+
+
+def test_outside_hull_is_flagged_with_idw_fallback():
+    pts = grid3()
+    ip = PaperInterpolator(pts, np.ones_like(pts))
+    res = ip(np.array([[10.0, 2.0, 2.0], [2.0, 2.0, 2.0]]))
+    assert list(res.inside_hull) == [False, True]
+    np.testing.assert_allclose(res.correction, 1.0)     # weights still normalised
+
+
+def test_interpolation_validation():
+    with pytest.raises(ValueError, match="at least 4"):
+        PaperInterpolator(np.eye(3), np.eye(3))
+    ip = PaperInterpolator(grid3(), grid3())
+    with pytest.raises(ValueError, match=r"shape \(N, 3\)"):
+        ip(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="NaN"):
+        ip(np.array([[np.nan, 0, 0]]))
+    flat = np.unique(np.c_[grid3()[:, :2], np.zeros(125)], axis=0)
+    with pytest.raises(ValueError, match="coplanar.*kriging"):
+        PaperInterpolator(flat, np.zeros_like(flat))
+
+
+def test_coplanar_3d_fiducials_work_with_kriging():
+    flat = np.unique(np.c_[grid3()[:, :2], np.zeros(125)], axis=0)
+    ip = KrigingInterpolator(flat, 1e-3 * np.sin(flat), sigma=1e-5)
+    res = ip(np.array([[1.5, 1.5, 0.0], [1.5, 1.5, 0.3], [9.0, 1.0, 0.0]]))
+    assert list(res.inside_hull) == [True, False, False]
+
+
+def smooth(p):
+    return 0.01 * np.c_[np.sin(p[:, 0] / 2), np.cos(p[:, 1] / 3), np.sin(p[:, 2] / 2.5)]
+
+
+def test_kriging_follows_a_clean_field():
+    pts = grid3()
+    ip = KrigingInterpolator(pts, smooth(pts), sigma=1e-6)
+    t = np.random.default_rng(2).uniform(0.5, 3.5, (40, 3))
+    res = ip(t)
+    paper = PaperInterpolator(pts, smooth(pts))(t)
+    err_k = np.linalg.norm(res.correction - smooth(t), axis=1)
+    err_p = np.linalg.norm(paper.correction - smooth(t), axis=1)
+    assert np.median(err_k) < np.median(err_p)
+    assert (res.expected_error > 0).all() and res.inside_hull.all()
+
+
+def test_kriging_shrinks_pure_noise_toward_zero():
+    pts = grid3()
+    noise = np.random.default_rng(3).normal(scale=0.01, size=pts.shape)   # no field at all
+    ip = KrigingInterpolator(pts, noise, sigma=0.01 * np.sqrt(3))
+    t = np.random.default_rng(4).uniform(0.5, 3.5, (40, 3))
+    k = np.linalg.norm(ip(t).correction, axis=1)
+    p = np.linalg.norm(PaperInterpolator(pts, noise)(t).correction, axis=1)
+    assert np.median(k) < 0.3 * np.median(p)
+
+
+def test_kriging_fits_unknown_noise():
+    pts = grid3()
+    rng = np.random.default_rng(5)
+    eps = smooth(pts) + rng.normal(scale=0.002, size=pts.shape)
+    ip = KrigingInterpolator(pts, eps, sigma=None)
+    assert ip.hyper.noise_fitted
+    assert ip.hyper.noise_std == pytest.approx(0.002 * np.sqrt(3), rel=0.5)
+
+
+def test_kriging_reuses_hyperparameters_and_validates():
+    pts = grid3()
+    a = KrigingInterpolator(pts, smooth(pts), sigma=1e-4)
+    b = KrigingInterpolator(pts, smooth(pts), hyperparameters=a.hyper)
+    assert b.hyper == a.hyper
+    with pytest.raises(ValueError, match="repeats"):
+        KrigingInterpolator(pts, smooth(pts), sigma=1e-4, repeats=np.zeros(125))
+    with pytest.raises(ValueError, match="sigma"):
+        KrigingInterpolator(pts, smooth(pts), sigma=-1.0)

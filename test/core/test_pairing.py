@@ -1,0 +1,93 @@
+"""Tests of the pure stamp pairer (no rclpy)."""
+
+import math
+
+import pytest
+
+from rbc_registration.core.pairing import StampPairer
+
+
+def test_pairs_within_slop_either_order():
+    p = StampPairer(slop=0.01)
+    assert p.add_working([1, 2, 3], "tracker", 10.0).pairs == ()
+    res = p.add_destination([4, 5, 6], "world", 10.005)
+    assert len(res.pairs) == 1 and res.dropped == ()
+    pair = res.pairs[0]
+    assert pair.working.xyz == (1, 2, 3) and pair.destination.xyz == (4, 5, 6)
+    assert pair.working.frame_id == "tracker" and pair.destination.frame_id == "world"
+    assert pair.stamp_s == 10.0
+    # destination first
+    assert p.add_destination([0, 0, 0], "world", 11.0).pairs == ()
+    assert len(p.add_working([0, 0, 0], "tracker", 10.995).pairs) == 1
+    assert p.pending("working") == p.pending("destination") == 0 and p.n_pairs == 2
+
+
+def test_nearest_in_time_wins():
+    p = StampPairer(slop=0.05)
+    p.add_destination([1, 0, 0], "world", 1.00)
+    p.add_destination([2, 0, 0], "world", 1.03)
+    res = p.add_working([0, 0, 0], "tracker", 1.04)
+    assert res.pairs[0].destination.xyz == (2, 0, 0)
+
+
+def test_stale_points_are_dropped_and_counted():
+    p = StampPairer(slop=0.01)
+    p.add_working([0, 0, 0], "tracker", 1.0)         # its destination never comes
+    res = p.add_destination([1, 1, 1], "world", 2.0)
+    assert res.pairs == ()
+    assert [d.stream for d in res.dropped] == ["working"]
+    assert "no destination point within 0.01 s" in res.dropped[0].reason
+    # A working point whose window the destination stream has passed is dropped at once.
+    res = p.add_working([0, 0, 0], "tracker", 1.5)
+    assert res.pairs == () and [d.stream for d in res.dropped] == ["working"]
+    assert p.n_dropped == 2
+    # The buffered destination (2.0) still pairs with its working point.
+    assert len(p.add_working([0, 0, 0], "tracker", 2.001).pairs) == 1
+
+
+def test_buffers_are_bounded():
+    p = StampPairer(slop=0.01, max_buffer=3)
+    dropped = []
+    for k in range(5):
+        dropped += p.add_working([k, 0, 0], "tracker", float(k)).dropped
+    assert p.pending("working") == 3
+    assert [d.point.xyz[0] for d in dropped] == [0, 1]
+    assert all("buffer full" in d.reason for d in dropped)
+
+
+def test_nan_coordinates_pass_through_to_the_accumulator():
+    p = StampPairer(slop=0.01)
+    p.add_working([math.nan, 0, 0], "tracker", 1.0)
+    res = p.add_destination([0, 0, 0], "world", 1.0)
+    assert math.isnan(res.pairs[0].working.xyz[0])
+
+
+@pytest.mark.parametrize("args, match", [
+    (("working", [0, 0], "t", 1.0), "must have 3 coordinates"),
+    (("working", [0, 0, 0], "t", math.inf), "stamp must be finite"),
+    (("sideways", [0, 0, 0], "t", 1.0), "stream must be"),
+])
+def test_bad_points_raise(args, match):
+    p = StampPairer(slop=0.01)
+    with pytest.raises(ValueError, match=match):
+        p.add(*args)
+    assert p.pending("working") == 0
+
+
+@pytest.mark.parametrize("slop", [0.0, -1.0, math.nan, math.inf])
+def test_bad_slop(slop):
+    with pytest.raises(ValueError, match="slop must be > 0"):
+        StampPairer(slop=slop)
+
+
+def test_bad_buffer_size():
+    with pytest.raises(ValueError, match="max_buffer"):
+        StampPairer(slop=0.1, max_buffer=0)
+
+
+def test_clear():
+    p = StampPairer(slop=0.01)
+    p.add_working([0, 0, 0], "tracker", 5.0)
+    p.clear()
+    assert p.pending("working") == 0
+    assert len(p.add_working([0, 0, 0], "tracker", 1.0).pairs) == 0  # no stale horizon left

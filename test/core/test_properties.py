@@ -1,0 +1,60 @@
+"""Property tests (hypothesis): invariants of the restoration and the model."""
+
+import numpy as np
+from hypothesis import given, settings, strategies as st
+from scipy.spatial.transform import Rotation
+
+from rbc_registration.core import ModelConfig, build_model, restore_rigid_body
+from rbc_registration.core.registration import rigid_fit
+
+seeds = st.integers(0, 2 ** 31 - 1)
+
+
+def cell(seed, j=30):
+    rng = np.random.default_rng(seed)
+    y = rng.uniform(-1, 1, (j, 3))
+    x = y @ Rotation.from_rotvec(rng.normal(size=3)).as_matrix().T + rng.normal(size=3)
+    x += 2e-3 * np.sin(3 * y + rng.uniform(0, 6, 3)) + rng.normal(scale=2e-4, size=y.shape)
+    return x, y
+
+
+def rigid(seed):
+    rng = np.random.default_rng(seed)
+    return Rotation.from_rotvec(rng.normal(size=3) * 2).as_matrix(), rng.normal(size=3) * 10
+
+
+@settings(max_examples=25, deadline=None)
+@given(seeds, seeds, st.sampled_from(["iterative", "closed-form"]))
+def test_moving_either_frame_rigidly_changes_no_correction_magnitude(seed, motion, method):
+    x, y = cell(seed)
+    base = np.linalg.norm(restore_rigid_body(x, y, method).corrections, axis=1)
+    r, t = rigid(motion)
+    moved_w = np.linalg.norm(restore_rigid_body(x @ r.T + t, y, method).corrections, axis=1)
+    moved_d = np.linalg.norm(restore_rigid_body(x, y @ r.T + t, method).corrections, axis=1)
+    np.testing.assert_allclose(moved_w, base, atol=1e-10)
+    np.testing.assert_allclose(moved_d, base, atol=1e-10)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seeds, st.sampled_from(["iterative", "closed-form"]))
+def test_fre_after_restoration_is_zero(seed, method):
+    x, y = cell(seed)
+    res = restore_rigid_body(x, y, method)
+    assert rigid_fit(res.corrected(x), y).fre_rms < 1e-9
+    assert rigid_fit(x, y).fre_rms > 1e-5
+
+
+@settings(max_examples=15, deadline=None)
+@given(seeds, seeds, st.sampled_from(["paper", "kriging"]))
+def test_permuting_fiducials_changes_nothing(seed, perm_seed, interpolation):
+    x, y = cell(seed)
+    perm = np.random.default_rng(perm_seed).permutation(len(x))
+    cfg = ModelConfig(dimension=3, interpolation=interpolation, sigma=2e-4 * np.sqrt(3))
+    a = build_model(x, y, cfg)
+    b = build_model(x[perm], y[perm], cfg)
+    np.testing.assert_allclose(b.corrections, a.corrections[perm], atol=1e-10)
+    np.testing.assert_allclose(b.sigma_l, a.sigma_l, rtol=1e-8, atol=1e-14)
+    np.testing.assert_allclose(b.corrected.rotation, a.corrected.rotation, atol=1e-10)
+    targets = np.random.default_rng(seed + 1).uniform(-0.6, 0.6, (5, 3))
+    np.testing.assert_allclose(b.correct(targets).corrected, a.correct(targets).corrected,
+                               atol=1e-7)

@@ -1,0 +1,43 @@
+"""Named regression case: the paper's findings on the synthetic cells (reduced N for speed)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from rbc_registration.reproduce import reproduce
+
+
+@pytest.fixture(scope="module")
+def doc(tmp_path_factory):
+    out = tmp_path_factory.mktemp("reproduce")
+    return reproduce(out, seed=0, repeats=20, log=lambda s: None), out
+
+
+def test_all_findings_hold(doc):
+    found, _ = doc
+    failed = [f for f in found["findings"] if not f["holds"]]
+    assert not failed, failed
+    assert len(found["findings"]) == 12
+
+
+def test_table1_orders_of_magnitude(doc):
+    found, _ = doc
+    cells = found["cells"]
+    for name, s_l0, rho in (("A", 2.5, 41.7), ("B", 0.09, 0.56), ("RA", 0.28, 2.54)):
+        sl = cells[name]["sigma_L"]
+        assert sl[0] == pytest.approx(s_l0, rel=0.1)
+        assert cells[name]["rho"] == pytest.approx(rho, rel=0.15)
+        assert sl[1] / sl[0] < 2e-3 and sl[2] / sl[0] < 1e-6
+    assert cells["A"]["recommendation"] == "apply"
+    assert cells["B"]["recommendation"] == "do_not_apply"
+
+
+def test_outputs_written(doc):
+    found, out = doc
+    assert (out / "table1.md").read_text().startswith("| cell |")
+    on_disk = json.loads((out / "reproduce.json").read_text())
+    assert on_disk["findings"] == found["findings"]
+    for name in found["figures"]:
+        assert (out / name).stat().st_size > 5000          # a real PNG, not an empty file
+    assert sum("kriging" in n for n in found["figures"]) == sum("paper" in n for n in found["figures"])

@@ -1,0 +1,128 @@
+"""RBC restoration (eq. 4): iterative vs dense vs closed-form, minimum norm, convergence."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rbc_registration.core.mismatch import sigma_l
+from rbc_registration.core.registration import rigid_fit
+from rbc_registration.core.restoration import (
+    closed_form_corrections, dense_gauss_newton_step, gauss_newton_step, normal_equations,
+    restore_rigid_body, rigid_motion_basis)
+
+
+def cell(dim=3, j=40, bias=1e-3, seed=0):
+    """Destination points, and working points = rigid copy + smooth bias (unit: metres)."""
+    rng = np.random.default_rng(seed)
+    y = rng.uniform(0, 2, (j, dim))
+    r = (Rotation.from_rotvec([0.2, -0.4, 0.9]).as_matrix() if dim == 3
+         else np.array([[0.6, -0.8], [0.8, 0.6]]))
+    x = (y - 0.5) @ r + bias * np.sin(2 * y[:, ::-1])
+    return x, y
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("solver", ["direct", "cg"])
+def test_step_equals_dense_formulation(dim, solver):
+    x, y = cell(dim, 25)
+    np.testing.assert_allclose(gauss_newton_step(x, y, solver), dense_gauss_newton_step(x, y),
+                               atol=1e-12, rtol=0)
+
+
+def test_normal_equations_equal_dense_jacobian_products():
+    x, y = cell(3, 9)
+    n, rhs = normal_equations(x, y)
+    ii, jj = np.triu_indices(9, 1)
+    a = np.zeros((len(ii), 27))
+    d = x[ii] - x[jj]
+    for k in range(3):
+        a[np.arange(len(ii)), ii * 3 + k] = 2 * d[:, k]
+        a[np.arange(len(ii)), jj * 3 + k] = -2 * d[:, k]
+    r = np.sum(d * d, 1) - np.sum((y[ii] - y[jj]) ** 2, 1)
+    np.testing.assert_allclose(n, a.T @ a, atol=1e-12)
+    np.testing.assert_allclose(rhs, a.T @ r, atol=1e-12)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_rigid_motions_are_the_null_space(dim):
+    x, y = cell(dim, 12)
+    n, _ = normal_equations(x - x.mean(0), y)
+    q = rigid_motion_basis(x)
+    assert q.shape == (12 * dim, 3 if dim == 2 else 6)
+    np.testing.assert_allclose(n @ q, 0, atol=1e-10)
+    ev = np.linalg.eigvalsh(n)
+    assert np.sum(ev < 1e-9 * ev.max()) == q.shape[1]
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_each_step_is_minimum_norm(dim):
+    x, y = cell(dim)
+    res = restore_rigid_body(x, y)
+    for points, eps in zip(res.stages(x), res.step_corrections):
+        q = rigid_motion_basis(points)          # no rigid motion in the step at its points
+        np.testing.assert_allclose(q.T @ eps.ravel(), 0, atol=1e-14)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_two_steps_restore_rbc(dim):
+    x, y = cell(dim)
+    res = restore_rigid_body(x, y, steps=2)
+    s0, s1, s2 = res.sigma_l
+    assert s1 < 1e-2 * s0 and s2 < 1e-6 * s0
+    assert res.sigma_l[-1] == pytest.approx(sigma_l(res.corrected(x), y))
+    assert rigid_fit(res.corrected(x), y).fre_rms < 1e-9
+    assert len(res.step_corrections) == 2
+    np.testing.assert_allclose(sum(res.step_corrections), res.corrections)
+
+
+def test_steps_are_configurable():
+    x, y = cell()
+    res = restore_rigid_body(x, y, steps=3)
+    assert len(res.sigma_l) == 4 and len(res.stages(x)) == 4
+
+
+def test_closed_form_is_exact():
+    x, y = cell()
+    res = restore_rigid_body(x, y, "closed-form")
+    assert res.sigma_l[1] < 1e-12
+    assert rigid_fit(res.corrected(x), y).fre_rms < 1e-12
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_iterative_and_closed_form_agree_to_second_order(dim):
+    diffs = []
+    for bias in (1e-3, 1e-4):
+        x, y = cell(dim, bias=bias)
+        it = restore_rigid_body(x, y).corrections
+        cf = closed_form_corrections(x, y)
+        assert np.abs(cf).max() == pytest.approx(np.abs(it).max(), rel=0.05)
+        diffs.append(np.abs(it - cf).max())
+    # a 10x smaller bias gives a ~100x smaller difference: they differ at second order
+    assert diffs[1] / diffs[0] < 0.02
+
+
+def test_coplanar_3d_falls_back_and_still_reduces_mismatch():
+    rng = np.random.default_rng(4)
+    y = np.c_[rng.uniform(0, 1, (20, 2)), np.zeros(20)]
+    x = y + rng.normal(scale=1e-3, size=y.shape)
+    res = restore_rigid_body(x, y)
+    assert res.sigma_l[2] < 0.01 * res.sigma_l[0]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"method": "magic"}, "restoration method"), ({"steps": 0}, "steps"),
+    ({"steps": 1.5}, "steps"), ({"solver": "lu"}, "solver")])
+def test_bad_options(kwargs, message):
+    x, y = cell()
+    with pytest.raises(ValueError, match=message):
+        restore_rigid_body(x, y, **kwargs)
+
+
+def test_too_few_and_degenerate_fiducials():
+    with pytest.raises(ValueError, match="at least 4"):
+        restore_rigid_body(np.eye(3), np.eye(3))
+    line = np.outer(np.arange(6.0), [1, 0, 0])
+    with pytest.raises(ValueError, match="collinear"):
+        restore_rigid_body(line, line)
+    with pytest.raises(ValueError, match="NaN"):
+        restore_rigid_body(np.full((5, 3), np.nan), np.zeros((5, 3)))

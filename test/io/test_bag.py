@@ -1,0 +1,217 @@
+"""rosbag2 reading and writing (rbc_registration.io.bag): round trips through both storages, and a
+clear BagError (never a traceback) for every kind of bad bag. No rclpy."""
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from rbc_registration import cli
+from rbc_registration.bag_commands import cell_messages
+from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io import bag as bagio
+from rbc_registration.io.bag import (DEFAULT_TOPICS, FIDUCIAL_PAIR, BagError, PairMessage,
+                                     PointMessage, Topics, read_bag, read_raw, write_bag)
+
+
+@pytest.fixture(scope="module")
+def cell_a():
+    return make_cell("A", seed=1, repeats=2)
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory, cell_a):
+    """Cell A (3D, 2 repeats) as a FiducialPair bag in each storage, and as point pairs."""
+    root = tmp_path_factory.mktemp("bags")
+    out = {}
+    for storage in ("sqlite3", "mcap"):
+        out[storage] = root / f"a_{storage}"
+        write_bag(out[storage], cell_messages(cell_a), storage, progress=False)
+    out["points"] = root / "a_points"
+    write_bag(out["points"], cell_messages(cell_a, points=True), "mcap", progress=False)
+    return out
+
+
+def storage_file(bag: Path) -> Path:
+    return next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_round_trip_in_metres_with_increasing_stamps(bags, cell_a, storage):
+    contents = read_bag(bags[storage], progress=False)
+    j = len(cell_a.fiducial_ids)
+    assert contents.counts == {DEFAULT_TOPICS.fiducial_pairs: 2 * j,
+                               DEFAULT_TOPICS.targets: 2 * len(cell_a.target_ids)}
+    assert all(isinstance(m, PairMessage) for m in contents.inputs)
+    first = contents.inputs[:j]  # the first pass visits every fiducial once
+    assert [m.fiducial_id for m in first] == list(cell_a.fiducial_ids)
+    np.testing.assert_array_equal([m.working for m in first],
+                                  [w[0] * 1e-3 for w in cell_a.fiducial_measurements])
+    np.testing.assert_array_equal([m.destination for m in first], cell_a.fiducial_truth * 1e-3)
+    assert {m.working_frame for m in contents.inputs} == {"tracker"}
+    assert {m.destination_frame for m in contents.inputs} == {"world"}
+    stamps = np.array([m.stamp_s for m in contents.inputs + contents.targets])
+    np.testing.assert_allclose(np.diff(stamps), 0.02, atol=1e-6)
+    np.testing.assert_array_equal([m.destination for m in contents.targets[:16]],
+                                  cell_a.target_truth * 1e-3)
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_single_storage_file_reads_like_the_directory(bags, storage):
+    whole = read_bag(bags[storage], progress=False)
+    single = read_bag(storage_file(bags[storage]), progress=False)
+    assert single.inputs == whole.inputs and single.targets == whole.targets
+
+
+def test_point_pairs(bags, cell_a):
+    contents = read_bag(bags["points"], progress=False)
+    assert all(isinstance(m, PointMessage) for m in contents.inputs)
+    working = [m for m in contents.inputs if m.stream == "working"]
+    destination = [m for m in contents.inputs if m.stream == "destination"]
+    assert len(working) == len(destination) == 2 * len(cell_a.fiducial_ids)
+    assert [m.stamp_s for m in working] == [m.stamp_s for m in destination]
+
+
+def test_two_dimensional_cell_has_zero_z(tmp_path):
+    bag = tmp_path / "ra"
+    write_bag(bag, cell_messages(make_cell("RA", seed=0)), progress=False)
+    contents = read_bag(bag, progress=False)
+    assert {m.working[2] for m in contents.inputs} == {0.0}
+    assert {m.destination[2] for m in contents.inputs + contents.targets} == {0.0}
+
+
+def test_other_node_name_and_read_raw(tmp_path, cell_a):
+    topics = Topics.for_node("cell_a")
+    assert topics.fiducial_pairs == "/cell_a/fiducial_pairs"
+    bag = tmp_path / "named"
+    write_bag(bag, cell_messages(cell_a, topics), "mcap", progress=False)
+    raw = read_raw(bag, progress=False)
+    assert {m.topic for m in raw} == {"/cell_a/fiducial_pairs", "/cell_a/targets"}
+    assert [m.log_ns for m in raw] == sorted(m.log_ns for m in raw)
+    with pytest.raises(BagError, match="none of the input topics"):
+        read_bag(bag, progress=False)
+    assert read_bag(bag, topics, progress=False).counts[topics.fiducial_pairs] > 0
+
+
+# -- bad bags: a BagError naming the problem ----------------------------------------------------
+def test_missing_bag(tmp_path):
+    with pytest.raises(BagError, match="no such file or directory"):
+        read_bag(tmp_path / "nope", progress=False)
+
+
+def test_directory_without_metadata(tmp_path):
+    with pytest.raises(BagError, match="no metadata.yaml"):
+        read_bag(tmp_path, progress=False)
+
+
+def test_unrecognised_file(tmp_path):
+    f = tmp_path / "cell.txt"
+    f.write_text("id,wx\n")
+    with pytest.raises(BagError, match="cannot open.*Unrecognized storage format"):
+        read_bag(f, progress=False)
+
+
+def test_malformed_metadata(tmp_path, bags):
+    bag = tmp_path / "bad_meta"
+    shutil.copytree(bags["sqlite3"], bag)
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [1, 2\n")
+    with pytest.raises(BagError, match="cannot open"):
+        read_bag(bag, progress=False)
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+@pytest.mark.parametrize("fraction", [0.02, 0.6])
+def test_truncated_bag(tmp_path, bags, storage, fraction):
+    bag = tmp_path / "cut"
+    shutil.copytree(bags[storage], bag)
+    f = storage_file(bag)
+    data = f.read_bytes()
+    f.write_bytes(data[:int(len(data) * fraction)])
+    for path in (bag, f):
+        with pytest.raises(BagError, match="truncated or corrupt"):
+            read_bag(path, progress=False)
+
+
+def test_corrupt_message_payload(tmp_path):
+    """A message whose bytes do not decode as its type."""
+    store = bagio.make_typestore()
+    bag = tmp_path / "garbage"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conn = w.add_connection(DEFAULT_TOPICS.fiducial_pairs, FIDUCIAL_PAIR, typestore=store)
+        w.write(conn, 1, b"\x00\x01\x00\x00\xff\xff")
+    with pytest.raises(BagError, match="message 1 on /registration_node/fiducial_pairs cannot "
+                                       "be decoded"):
+        read_bag(bag, progress=False)
+
+
+def test_required_topic_missing_names_the_bag_topics(bags):
+    with pytest.raises(BagError, match=r"no topic /elsewhere .*topics in the bag: "
+                                       r"/registration_node/fiducial_pairs"):
+        read_bag(bags["sqlite3"], DEFAULT_TOPICS._replace(fiducial_pairs="/elsewhere"),
+                 required=["/elsewhere"], progress=False)
+
+
+def test_topic_with_wrong_type(bags):
+    topics = DEFAULT_TOPICS._replace(working_point=DEFAULT_TOPICS.fiducial_pairs)
+    with pytest.raises(BagError, match="has type rbc_registration_interfaces/msg/FiducialPair, "
+                                       "expected geometry_msgs/msg/PointStamped"):
+        read_bag(bags["sqlite3"], topics, progress=False)
+
+
+def test_only_one_point_stream(tmp_path, cell_a):
+    bag = tmp_path / "half"
+    msgs = [m for m in cell_messages(cell_a, points=True)
+            if m.topic != DEFAULT_TOPICS.destination_point]
+    write_bag(bag, msgs, progress=False)
+    with pytest.raises(BagError, match="cannot be paired"):
+        read_bag(bag, progress=False)
+
+
+def test_missing_interface_definitions(monkeypatch, tmp_path, bags):
+    monkeypatch.setattr(bagio, "interface_msg_dirs", lambda: [tmp_path])
+    with pytest.raises(BagError, match="missing type definitions: FiducialPair.msg"):
+        read_bag(bags["sqlite3"], progress=False)
+
+
+def test_bag_with_another_definition_of_fiducial_pair(tmp_path):
+    store = get_typestore(Stores.ROS2_KILTED)
+    store.register(get_types_from_msg("std_msgs/Header header\nstring fiducial_id\n",
+                                      FIDUCIAL_PAIR))
+    bag = tmp_path / "old_def"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
+        w.add_connection(DEFAULT_TOPICS.fiducial_pairs, FIDUCIAL_PAIR, typestore=store)
+    with pytest.raises(BagError, match="another definition of rbc_registration_interfaces/msg/"
+                                       "FiducialPair"):
+        read_bag(bag, progress=False)
+
+
+def test_storage_must_be_known(tmp_path):
+    with pytest.raises(BagError, match="storage must be one of sqlite3, mcap"):
+        write_bag(tmp_path / "x", [], "zip")
+
+
+def test_existing_output_is_not_overwritten(bags):
+    with pytest.raises(BagError, match="exists already"):
+        write_bag(bags["sqlite3"], [], progress=False)
+
+
+# -- the command line: one line on stderr, exit 2, no traceback ---------------------------------
+@pytest.mark.parametrize("args", [
+    ["evaluate", "{tmp}/nope"],
+    ["evaluate", "{tmp}"],
+    ["evaluate", "{bag}", "--fiducial-topic", "/nope"],
+    ["evaluate", "{bag}", "-p", "merge_radius:=abc"],
+    ["evaluate", "{bag}", "-p", "no_such:=1"],
+    ["replay", "{tmp}/nope"],
+    ["replay", "{bag}", "--topics", "/nope"],
+    ["synth-bag", "--cell", "RA", "{bag}"],
+])
+def test_cli_errors_are_one_clear_line(args, tmp_path, bags, capsys):
+    argv = [a.format(tmp=tmp_path, bag=bags["sqlite3"]) for a in args]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"rbc-registration {argv[0]}: error: " in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1

@@ -1,0 +1,92 @@
+"""CSV reading: round trips and one test per validation rule (the bad-input matrix, CSV rows)."""
+
+import numpy as np
+import pytest
+
+from rbc_registration.io.csv_io import (CsvError, read_fiducials, read_targets, write_fiducials,
+                                        write_targets)
+
+GOOD = """id,wx,wy,wz,dx,dy,dz
+a,0,0,0,10,0,0
+a,0.002,0,0,10,0,0
+b,1,0,0,11,0,0
+c,0,1,0,10,1,0
+d,0,0,1,10,0,1
+"""
+
+
+def write(tmp_path, text, name="f.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_repeats_are_grouped_and_averaged(tmp_path):
+    t = read_fiducials(write(tmp_path, GOOD))
+    assert t.ids == ("a", "b", "c", "d") and t.dimension == 3
+    assert t.working_repeats[0].shape == (2, 3)
+    np.testing.assert_allclose(t.working[0], [0.001, 0, 0])
+
+
+def test_2d_files_and_dim_override(tmp_path):
+    t = read_fiducials(write(tmp_path, "id,wx,wy,dx,dy\na,0,0,1,1\nb,1,0,2,1\nc,0,1,1,2\n"))
+    assert t.dimension == 2
+    t3 = read_fiducials(write(tmp_path, GOOD), dim=2)
+    assert t3.working.shape == (4, 2)
+
+
+def test_round_trip(tmp_path):
+    rng = np.random.default_rng(0)
+    reps = [rng.normal(size=(3, 3)) for _ in range(5)]
+    dest = [rng.normal(size=(1, 3)) + 10 * k for k in range(5)]
+    p = tmp_path / "rt.csv"
+    write_fiducials(p, [f"F{k}" for k in range(5)], reps, dest)
+    t = read_fiducials(p)
+    for a, b in zip(t.working_repeats, reps):
+        np.testing.assert_array_equal(a, b)          # repr() keeps every bit
+    targets = tmp_path / "t.csv"
+    write_targets(targets, ["T0", "T1"], rng.normal(size=(2, 3)), rng.normal(size=(2, 3)))
+    tt = read_targets(targets, 3)
+    assert tt.ids == ("T0", "T1") and tt.destination.shape == (2, 3)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("", "empty file"),
+    ("id,wx,wy,wz,dx,dy,dz\n", "no data rows"),
+    ("id,wx,wy,dz\na,1,2,3\n", "missing column.*dx, dy"),
+    ("id,wx,wy,wz,dx,dy,dz\na,1,2,x,1,2,3\n", "row 2: column wz is not a number: 'x'"),
+    ("id,wx,wy,wz,dx,dy,dz\na,1,2,,1,2,3\n", "row 2: column wz is empty"),
+    ("id,wx,wy,wz,dx,dy,dz\na,1,2,nan,1,2,3\n", "not finite"),
+    ("id,wx,wy,wz,dx,dy,dz\na,1,2,1e300,1,2,3\n", "out of range"),
+    ("id,wx,wy,wz,dx,dy\na,1,2,3,1,2\n", "mixed 2D/3D.*dz"),
+    ("id,wx,wy,wz,dx,dy,dz\n,1,2,3,1,2,3\n", "column id is empty"),
+    ("id,wx,wy,wz,dx,dy,dz\na,0,0,0,0,0,0\na,0,0,0,5,0,0\nb,1,1,1,1,1,1\n",
+     "id 'a' .* conflicting destination"),
+])
+def test_bad_fiducial_files(tmp_path, text, message):
+    with pytest.raises(CsvError, match=message):
+        read_fiducials(write(tmp_path, text))
+
+
+def test_missing_file_and_binary(tmp_path):
+    with pytest.raises(CsvError, match="no such file"):
+        read_fiducials(tmp_path / "nope.csv")
+    p = tmp_path / "bin.csv"
+    p.write_bytes(b"\xff\xfe\x00\x81garbage")
+    with pytest.raises(CsvError, match="not a readable CSV"):
+        read_fiducials(p)
+
+
+def test_dim3_needs_z(tmp_path):
+    with pytest.raises(CsvError, match="--dim 3 needs"):
+        read_fiducials(write(tmp_path, "id,wx,wy,dx,dy\na,0,0,1,1\n"), dim=3)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("id,wx,wy\nt,1,2\n", "missing column.*wz"),
+    ("id,wx,wy,wz,dx,dy\nt,1,2,3,1,2\n", "truth columns incomplete"),
+    ("id,wx,wy,wz\nt,1,two,3\n", "column wy is not a number"),
+])
+def test_bad_target_files(tmp_path, text, message):
+    with pytest.raises(CsvError, match=message):
+        read_targets(write(tmp_path, text), 3)

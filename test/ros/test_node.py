@@ -1,0 +1,375 @@
+"""registration_node in process: real rclpy, its own Context per test class, a client node in the
+same executor. Answers are compared with the core library on the same data."""
+
+import itertools
+import json
+import os
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("rbc_registration_interfaces.msg")
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from geometry_msgs.msg import PointStamped, TransformStamped  # noqa: E402
+from rcl_interfaces.msg import ParameterType  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
+
+from rbc_registration.ros.conversions import transform_to_matrix  # noqa: E402
+from rbc_registration.ros.node import RegistrationNode  # noqa: E402
+from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
+from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets,  # noqa: E402
+                                             SetFiducialEnabled)
+
+from ros_helpers import (RosHarness, answer_key, expected_state, make_cell, pair_msg,  # noqa: E402
+                         point_xyz, target_msg, wait_for)
+
+pytestmark = pytest.mark.ros
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_names = itertools.count()
+
+
+class NodeTestBase:
+    """One Context per test class; each test makes its own node(s) with unique names."""
+
+    @classmethod
+    def setup_class(cls):
+        cls.ros = RosHarness()
+        cls.cell = make_cell()
+        cls.n = len(cls.cell["fid"])
+
+    @classmethod
+    def teardown_class(cls):
+        cls.ros.stop()
+
+    def setup_method(self):
+        self.nodes = []
+
+    def teardown_method(self):
+        for node in self.nodes:
+            self.ros.remove(node)
+
+    def make_node(self, **params):
+        name = f"reg_{os.getpid()}_{next(_names)}"
+        overrides = [Parameter(k, value=v) for k, v in {"debounce_period": 0.05, **params}.items()]
+        node = RegistrationNode(name, context=self.ros.context, parameter_overrides=overrides)
+        self.nodes.append(self.ros.add(node))
+        return node
+
+    def publisher(self, node, msg_type, topic):
+        pub = self.ros.client.create_publisher(msg_type, f"/{node.get_name()}/{topic}", 1000)
+        wait_for(lambda: pub.get_subscription_count() > 0, what=f"subscriber of {topic}")
+        return pub
+
+    def stream(self, node, indices=None, with_ids=True, wait=True):
+        pub = self.publisher(node, FiducialPair, "fiducial_pairs")
+        indices = range(self.n) if indices is None else indices
+        before = node.status().n_measurements
+        for k in indices:
+            pub.publish(pair_msg(self.cell, k, with_id=with_ids, stamp_s=100.0 + k))
+        if wait:
+            wait_for(lambda: node.status().n_measurements == before + len(indices),
+                     what="measurements accepted")
+        self.ros.client.destroy_publisher(pub)
+
+    def srv(self, node, srv_type, name, request=None):
+        return self.ros.call(srv_type, f"/{node.get_name()}/{name}",
+                             request if request is not None else srv_type.Request())
+
+    def recompute(self, node):
+        response = self.srv(node, Trigger, "recompute")
+        assert response.success, response.message
+        return node.state
+
+    def correct(self, node, xyz, frame="tracker"):
+        return self.srv(node, CorrectTarget, "correct_target",
+                        CorrectTarget.Request(target=target_msg(xyz, frame)))
+
+    def latest(self, node, msg_type, topic, qos=LATCHED, predicate=lambda m: True):
+        got = []
+        sub = self.ros.client.create_subscription(msg_type, topic, got.append, qos)
+        try:
+            wait_for(lambda: any(predicate(m) for m in got), what=f"a message on {topic}")
+            return [m for m in got if predicate(m)][-1]
+        finally:
+            self.ros.client.destroy_subscription(sub)
+
+    def assert_answers_match_core(self, node, expected, targets):
+        tc = expected.model.correct(targets)
+        for k, target in enumerate(targets):
+            r = self.correct(node, target)
+            assert r.success, r.message
+            np.testing.assert_allclose(point_xyz(r.corrected.point), tc.corrected[k], atol=1e-12)
+            np.testing.assert_allclose(point_xyz(r.uncorrected.point), tc.uncorrected[k],
+                                       atol=1e-12)
+            np.testing.assert_allclose(point_xyz(r.correction), tc.correction[k], atol=1e-12)
+            assert r.inside_hull == bool(tc.inside_hull[k])
+
+
+class TestLiveRegistration(NodeTestBase):
+
+    def test_fiducial_pairs_give_the_core_model_and_answers(self):
+        node = self.make_node()
+        self.stream(node)
+        state = self.recompute(node)
+        expected = expected_state(self.cell, debounce_period=0.05)
+        assert state.model.ids == expected.model.ids
+        np.testing.assert_array_equal(state.model.corrections, expected.model.corrections)
+        self.assert_answers_match_core(node, expected, self.cell["targets"])
+        r = self.correct(node, self.cell["targets"][0])
+        assert r.correction_applied and r.destination == r.corrected
+        assert r.destination.header.frame_id == "world"
+        assert "recommendation apply" in r.message
+
+        batch = self.srv(node, CorrectTargets, "correct_targets", CorrectTargets.Request(
+            targets=[target_msg(t) for t in self.cell["targets"]]))
+        assert batch.success and len(batch.results) == len(self.cell["targets"])
+        tc = expected.model.correct(self.cell["targets"])
+        np.testing.assert_allclose([point_xyz(x.destination.point) for x in batch.results],
+                                   tc.corrected, atol=1e-12)
+
+        status = self.latest(node, RegistrationStatus, f"/{node.get_name()}/status",
+                             predicate=lambda m: m.model_valid)
+        assert (status.n_fiducials, status.n_measurements, status.n_rejected) == (48, 144, 0)
+        assert status.sigma_source == "repeats" and status.recommendation == "apply"
+        assert status.corrections_applied and status.fre_rms_corrected < 1e-9
+        assert len(status.sigma_l) == 3 and status.rho == pytest.approx(expected.model.rho)
+
+    def test_transforms_are_latched_for_late_joiners(self):
+        node = self.make_node()
+        self.stream(node)
+        model = self.recompute(node).model
+        for topic, registration in (("transform", model.corrected),
+                                    ("transform_uncorrected", model.uncorrected)):
+            msg = self.latest(node, TransformStamped, f"/{node.get_name()}/{topic}")
+            assert msg.header.frame_id == "world" and msg.child_frame_id == "tracker"
+            m = transform_to_matrix(msg)
+            np.testing.assert_allclose(m[:3, :3], registration.rotation, atol=1e-12)
+            np.testing.assert_allclose(m[:3, 3], registration.translation, atol=1e-12)
+
+    def test_markers_and_diagnostics(self):
+        node = self.make_node()
+        self.stream(node)
+        self.recompute(node)
+        markers = self.latest(node, MarkerArray, f"/{node.get_name()}/markers",
+                              predicate=lambda m: len(m.markers) > 2)
+        kinds = [m.type for m in markers.markers[1:]]
+        assert markers.markers[0].action == Marker.DELETEALL
+        assert kinds.count(Marker.SPHERE_LIST) == 1 and kinds.count(Marker.ARROW) == 48
+        arrow = [m for m in markers.markers if m.ns.endswith("corrections")][0]
+        length = np.linalg.norm(point_xyz(arrow.points[1]) - point_xyz(arrow.points[0]))
+        assert length > 0.01   # ~1 mm corrections drawn 100x longer: visible
+        diag = self.latest(node, DiagnosticArray, "/diagnostics", qos=10, predicate=lambda m: any(
+            s.name.startswith(node.get_name()) for s in m.status))
+        status = [s for s in diag.status if s.name.startswith(node.get_name())][0]
+        assert status.level == DiagnosticStatus.OK, status.message
+
+    def test_points_paired_by_stamp_get_ids_by_proximity(self):
+        node = self.make_node()
+        w_pub = self.publisher(node, PointStamped, "working_point")
+        d_pub = self.publisher(node, PointStamped, "destination_point")
+        for k in range(self.n):
+            stamp = 10.0 + 0.1 * k
+            for pub, frame, xyz, offset in ((w_pub, "tracker", self.cell["working"][k], 0.0),
+                                            (d_pub, "world", self.cell["destination"][k], 0.004)):
+                msg = target_msg(xyz, frame)
+                t = stamp + offset
+                msg.header.stamp.sec, msg.header.stamp.nanosec = int(t), int(t % 1 * 1e9)
+                pub.publish(msg)
+        wait_for(lambda: node.status().n_measurements == self.n, what="pairs")
+        state = self.recompute(node)
+        expected = expected_state(self.cell, with_ids=False)
+        assert len(state.model.ids) == 48 and state.model.ids[0] == "auto-0000"
+        assert all(len(r) == 3 for r in state.fiducials.working_repeats)  # visits merged
+        self.assert_answers_match_core(node, expected, self.cell["targets"][:3])
+
+    def test_no_model_until_enough_fiducials(self):
+        node = self.make_node(min_fiducials=10)
+        r = self.correct(node, [0.1, 0.2, 0.3])
+        assert not r.success and r.message.startswith("no model yet")
+        self.stream(node, range(5))
+        assert not self.srv(node, Trigger, "recompute").success
+        r = self.correct(node, [0.1, 0.2, 0.3])
+        assert not r.success and "5 enabled fiducials, need min_fiducials=10" in r.message
+
+    def test_a_burst_is_debounced(self):
+        node = self.make_node(debounce_period=0.5)
+        self.stream(node)
+        wait_for(lambda: node.state.model is not None, what="debounced model")
+        assert node.rebuilds <= 3   # not one per message (144 messages)
+        assert node.status().n_pending == 0
+
+
+class TestBadInput(NodeTestBase):
+
+    def test_each_rejection_is_counted_and_the_node_keeps_answering(self):
+        node = self.make_node(outlier_distance=0.002)
+        self.stream(node)
+        before = self.recompute(node).model
+        target = self.cell["targets"][0]
+        good = self.correct(node, target)
+        pub = self.publisher(node, FiducialPair, "fiducial_pairs")
+        bad_frame = pair_msg(self.cell, 0, frame="camera")
+        bad_dest_frame = pair_msg(self.cell, 0, destination_frame="map")
+        nan = pair_msg(self.cell, 1)
+        nan.working_point.y = float("nan")
+        inf = pair_msg(self.cell, 1)
+        inf.destination_point.z = float("inf")
+        outlier = pair_msg(self.cell, 2)
+        outlier.working_point.x += 0.01
+        malformed = pair_msg(self.cell, 3)
+        malformed.fiducial_id = "H03\nH04"
+        for msg in (bad_frame, bad_dest_frame, nan, inf, outlier, malformed):
+            pub.publish(msg)
+        # Unpairable points: a working point whose destination never comes is dropped once the
+        # destination stream has moved past it.
+        w_pub = self.publisher(node, PointStamped, "working_point")
+        d_pub = self.publisher(node, PointStamped, "destination_point")
+        lonely = target_msg([0, 0, 0], "tracker")
+        lonely.header.stamp.sec = 5
+        w_pub.publish(lonely)
+        wait_for(lambda: node.status().n_rejected == 6, what="6 rejections")
+        later = target_msg([0, 0, 0], "world")
+        later.header.stamp.sec = 9
+        d_pub.publish(later)
+        wait_for(lambda: node.status().n_rejected == 7, what="the unpaired point")
+        s = node.status()
+        assert (s.n_rejected_frame, s.n_rejected_nonfinite, s.n_rejected_outlier,
+                s.n_rejected_malformed) == (2, 2, 1, 2)
+        assert s.n_measurements == self.n   # nothing rejected reached the model
+        after = self.recompute(node).model
+        np.testing.assert_array_equal(after.corrections, before.corrections)
+        assert answer_key(self.correct(node, target)) == answer_key(good)
+
+    def test_bad_targets_get_a_reason_and_nothing_breaks(self):
+        node = self.make_node()
+        self.stream(node)
+        self.recompute(node)
+        r = self.correct(node, [0.1, 0.2, 0.3], frame="camera")
+        assert not r.success and "frame_id 'camera'" in r.message
+        r = self.correct(node, [0.1, float("nan"), 0.3])
+        assert not r.success and "NaN" in r.message
+        batch = self.srv(node, CorrectTargets, "correct_targets", CorrectTargets.Request(
+            targets=[target_msg([0.1, 0.2, 0.3]), target_msg([0, 0, 0], "camera")]))
+        assert not batch.success and "target 1" in batch.message and not batch.results
+        assert self.srv(node, CorrectTargets, "correct_targets").success   # empty list
+        assert self.correct(node, self.cell["targets"][0]).success
+
+    def test_parameter_updates_are_validated_with_a_reason(self):
+        node = self.make_node()
+        results = node.set_parameters([Parameter("rho_reject", value=5.0)])
+        assert not results[0].successful and "must be <= rho_apply" in results[0].reason
+        results = node.set_parameters([Parameter("pair_slop", value=0.0)])
+        assert not results[0].successful and "pair_slop" in results[0].reason
+        results = node.set_parameters([Parameter("interpolation", value="cubic")])
+        assert not results[0].successful and "one of paper, kriging" in results[0].reason
+        results = node.set_parameters([Parameter("dimension", value=2)])
+        assert not results[0].successful   # read-only
+        results = node.set_parameters([Parameter("sigma", value=1)])   # integer for a double
+        assert not results[0].successful
+        assert node.set_parameters([Parameter("merge_radius", value=0.01)])[0].successful
+        assert node.get_parameter("merge_radius").value == 0.01
+        desc = node.describe_parameter("merge_radius")
+        assert desc.type == ParameterType.PARAMETER_DOUBLE and desc.floating_point_range
+
+    def test_apply_corrections_override(self):
+        node = self.make_node()
+        self.stream(node)
+        self.recompute(node)
+        target = self.cell["targets"][1]
+        for mode, applied in (("off", False), ("on", True), ("auto", True)):
+            assert node.set_parameters([Parameter("apply_corrections", value=mode)])[0].successful
+            r = self.correct(node, target)
+            assert r.correction_applied is applied and f"mode {mode}" in r.message
+            assert r.destination == (r.corrected if applied else r.uncorrected)
+        # A known sigma that makes rho small: auto stops applying.
+        assert node.set_parameters([Parameter("sigma", value=0.01)])[0].successful
+        state = self.recompute(node)
+        assert state.model.recommendation == "do_not_apply"
+        r = self.correct(node, target)
+        assert r.success and not r.correction_applied
+        assert node.status().sigma_source == "parameter"
+
+
+class TestServicesAndPersistence(NodeTestBase):
+
+    def test_set_fiducial_enabled(self, tmp_path):
+        node = self.make_node(state_dir=str(tmp_path))
+        self.stream(node)
+        r = self.srv(node, SetFiducialEnabled, "set_fiducial_enabled",
+                     SetFiducialEnabled.Request(fiducial_id="H05", enabled=False))
+        assert r.success, r.message
+        state = self.recompute(node)
+        assert "H05" not in state.model.ids and len(state.model.ids) == 47
+        assert node.status().n_disabled == 1
+        r = self.srv(node, SetFiducialEnabled, "set_fiducial_enabled",
+                     SetFiducialEnabled.Request(fiducial_id="nope", enabled=False))
+        assert not r.success and "unknown fiducial id 'nope'" in r.message
+
+    def test_restart_rebuilds_the_same_model_from_the_journal(self, tmp_path):
+        node = self.make_node(state_dir=str(tmp_path))
+        self.stream(node)
+        assert self.srv(node, SetFiducialEnabled, "set_fiducial_enabled",
+                        SetFiducialEnabled.Request(fiducial_id="H07", enabled=False)).success
+        first = self.recompute(node).model
+        answers = [answer_key(self.correct(node, t)) for t in self.cell["targets"]]
+        self.ros.remove(node)
+        self.nodes.remove(node)
+        with open(tmp_path / "journal.jsonl", "ab") as f:   # a torn write at the end
+            f.write(b'{"t":"m","id":"H01","w":[0.1,')
+        again = self.make_node(state_dir=str(tmp_path))
+        wait_for(lambda: again.state.model is not None, what="model rebuilt from the journal")
+        assert again.state.model.ids == first.ids and "H07" not in first.ids
+        np.testing.assert_array_equal(again.state.model.corrections, first.corrections)
+        assert [answer_key(self.correct(again, t)) for t in self.cell["targets"]] == answers
+        assert again.status().n_measurements == self.n
+
+    def test_save_and_reset(self, tmp_path):
+        node = self.make_node(state_dir=str(tmp_path))
+        self.stream(node)
+        model = self.recompute(node).model
+        r = self.srv(node, Trigger, "save")
+        assert r.success and "calibration.json" in r.message
+        saved = json.loads((tmp_path / "calibration.json").read_text())
+        np.testing.assert_allclose(saved["corrected"]["rotation"], model.corrected.rotation)
+        assert saved["fiducial_ids"] == list(model.ids) and saved["units"] == "m"
+        r = self.srv(node, Trigger, "reset")
+        assert r.success and "archived" in r.message
+        assert node.status().n_measurements == 0 and not node.status().model_valid
+        r = self.correct(node, self.cell["targets"][0])
+        assert not r.success and "no model yet" in r.message
+        self.stream(node, range(self.n))   # collects again after a reset
+        assert self.recompute(node).model is not None
+
+    def test_save_without_state_dir_says_why(self):
+        node = self.make_node()
+        r = self.srv(node, Trigger, "save")
+        assert not r.success and "state_dir is not set" in r.message
+
+
+class TestTwoDimensions(NodeTestBase):
+
+    def test_x_y_only_and_z_passes_through(self):
+        node = self.make_node(dimension=2, min_fiducials=4)
+        # 2D: one z layer of the grid (the others have the same x, y).
+        layer = [k for k in range(self.n) if self.cell["fid"][k] % 3 == 0]
+        self.stream(node, layer)
+        state = self.recompute(node)
+        expected = expected_state(self.cell, layer, dimension=2, min_fiducials=4)
+        assert state.model.working.shape[1] == 2
+        target = self.cell["targets"][2]
+        r = self.correct(node, target)
+        tc = expected.model.correct(target[None, :2])
+        assert r.success, r.message
+        np.testing.assert_allclose(point_xyz(r.corrected.point)[:2], tc.corrected[0], atol=1e-12)
+        assert r.corrected.point.z == target[2] and r.uncorrected.point.z == target[2]
+        assert r.correction.z == 0.0
+        msg = self.latest(node, TransformStamped, f"/{node.get_name()}/transform")
+        m = transform_to_matrix(msg)
+        np.testing.assert_allclose(m[:2, :2], state.model.corrected.rotation, atol=1e-12)
+        np.testing.assert_allclose(m[2, :], [0, 0, 1, 0], atol=1e-12)

@@ -1,0 +1,170 @@
+"""registration_node as a separate process: a separate client process streams pairs and corrects
+targets; SIGKILL mid-stream and restart loses no accepted measurement and gives the same model.
+
+DDS stays on loopback: test/conftest.py sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a
+per-process ROS_DOMAIN_ID, which the subprocesses inherit.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("rbc_registration_interfaces.msg")
+
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
+from rbc_registration_interfaces.srv import CorrectTarget  # noqa: E402
+
+from ros_helpers import (RosHarness, answer_key, expected_state, make_cell,  # noqa: E402
+                         pair_msg, target_msg, wait_for)
+
+pytestmark = pytest.mark.ros
+HERE = os.path.dirname(os.path.abspath(__file__))
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def start_node(name, state_dir=None, log=None, **params):
+    """``python -m rbc_registration.ros.node`` with a node name and parameters."""
+    args = [sys.executable, "-m", "rbc_registration.ros.node", "--ros-args", "-r",
+            f"__node:={name}", "-p", "debounce_period:=0.05"]
+    if state_dir:
+        args += ["-p", f"state_dir:={state_dir}"]
+    for key, value in params.items():
+        args += ["-p", f"{key}:={value}"]
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    return subprocess.Popen(args, env=env, stdout=log or subprocess.DEVNULL,
+                            stderr=subprocess.STDOUT)
+
+
+def stop(proc, sig=signal.SIGINT):
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def expected_answers(cell, indices=None):
+    model = expected_state(cell, indices, debounce_period=0.05).model
+    tc = model.correct(cell["targets"])
+    return tc
+
+
+def check_answers(answers, tc):
+    assert len(answers) == len(tc.corrected)
+    for k, a in enumerate(answers):
+        success, destination, corrected, uncorrected, correction = a[:5]
+        assert success
+        np.testing.assert_allclose(corrected, tc.corrected[k], atol=1e-12)
+        np.testing.assert_allclose(uncorrected, tc.uncorrected[k], atol=1e-12)
+        np.testing.assert_allclose(correction, tc.correction[k], atol=1e-12)
+
+
+def test_separate_client_process_streams_pairs_and_corrects_targets(tmp_path):
+    cell = make_cell(seed=3)
+    np.savez(tmp_path / "cell.npz", **cell)
+    name = f"reg_proc_{os.getpid()}"
+    with open(tmp_path / "node.log", "w") as log:
+        node = start_node(name, log=log)
+        try:
+            client = subprocess.run(
+                [sys.executable, os.path.join(HERE, "stream_client.py"), name,
+                 str(tmp_path / "cell.npz"), str(tmp_path / "answers.json")],
+                env=dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"),
+                capture_output=True, text=True, timeout=120)
+            assert client.returncode == 0, client.stdout + client.stderr
+        finally:
+            stop(node)
+    answers = json.loads((tmp_path / "answers.json").read_text())
+    check_answers(answers, expected_answers(cell))
+    assert node.returncode == 0, (tmp_path / "node.log").read_text()
+
+
+class TestKillAndRestart:
+    """The test process is the client; the node is a subprocess killed with SIGKILL."""
+
+    @classmethod
+    def setup_class(cls):
+        cls.ros = RosHarness()
+
+    @classmethod
+    def teardown_class(cls):
+        cls.ros.stop()
+
+    def status_sub(self, name):
+        statuses = []
+        sub = self.ros.client.create_subscription(RegistrationStatus, f"/{name}/status",
+                                                  statuses.append, LATCHED)
+        return statuses, sub
+
+    def answers(self, name, cell):
+        assert self.ros.call(Trigger, f"/{name}/recompute", Trigger.Request(), 30).success
+        return [answer_key(self.ros.call(CorrectTarget, f"/{name}/correct_target",
+                                         CorrectTarget.Request(target=target_msg(t)), 30))
+                for t in cell["targets"]]
+
+    def test_kill_9_mid_stream_then_restart_gives_the_same_model(self, tmp_path):
+        cell = make_cell(seed=5, repeats=4)
+        n = len(cell["fid"])
+        state_dir = tmp_path / "state"
+        name = f"reg_kill_{os.getpid()}"
+        log = open(tmp_path / "node.log", "w")
+        node = start_node(name, state_dir, log, status_period=0.02)
+        statuses, sub = self.status_sub(name)
+        pub = self.ros.client.create_publisher(FiducialPair, f"/{name}/fiducial_pairs", 1000)
+        try:
+            wait_for(lambda: pub.get_subscription_count() > 0, 30, "the node's subscription")
+            # Stream at ~500 Hz and SIGKILL the node in the middle of the stream, while it is
+            # receiving and journaling.
+            published = 0
+            while published < n // 2:
+                pub.publish(pair_msg(cell, published, stamp_s=100.0 + published))
+                published += 1
+                time.sleep(0.002)
+            node.send_signal(signal.SIGKILL)
+            node.wait(timeout=15)
+            acknowledged = max((s.n_measurements for s in statuses), default=0)
+            assert 0 < acknowledged <= published
+
+            # Restart: every measurement the node had acknowledged is back.
+            statuses.clear()
+            node = start_node(name, state_dir, log)
+            wait_for(lambda: statuses and statuses[-1].model_valid, 30, "restored model")
+            restored = statuses[-1].n_measurements
+            print(f"published {published}, acknowledged {acknowledged}, restored {restored}")
+            assert acknowledged <= restored <= published
+            restored_answers = self.answers(name, cell)
+            check_answers(restored_answers, expected_answers(cell, range(restored)))
+
+            # Stream the rest; the node ends with the model of all pairs.
+            for k in range(restored, n):
+                pub.publish(pair_msg(cell, k, stamp_s=100.0 + k))
+            wait_for(lambda: statuses and statuses[-1].n_measurements == n, 30, "all pairs")
+            full_answers = self.answers(name, cell)
+            check_answers(full_answers, expected_answers(cell))
+
+            # Killed again and restarted: the same answers, bit for bit.
+            node.send_signal(signal.SIGKILL)
+            node.wait(timeout=15)
+            statuses.clear()
+            node = start_node(name, state_dir, log)
+            wait_for(lambda: statuses and statuses[-1].model_valid
+                     and statuses[-1].n_measurements == n, 30, "restored model")
+            assert self.answers(name, cell) == full_answers
+        finally:
+            stop(node)
+            log.close()
+            self.ros.client.destroy_subscription(sub)
+            self.ros.client.destroy_publisher(pub)

@@ -1,0 +1,101 @@
+"""The `rbc-registration` command, run as users run it (a subprocess), against the core library."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from rbc_registration.core import ModelConfig, build_model, leave_one_out, target_errors
+from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io.csv_io import write_fiducials, write_targets
+
+
+def run(*args, check=True):
+    proc = subprocess.run([sys.executable, "-m", "rbc_registration.cli", *map(str, args)],
+                          capture_output=True, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+@pytest.fixture(scope="module")
+def ra_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ra")
+    cell = make_cell("RA", seed=3)
+    write_fiducials(d / "fiducials.csv", cell.fiducial_ids, cell.fiducial_measurements,
+                    [t[None] for t in cell.fiducial_truth])
+    write_targets(d / "targets.csv", cell.target_ids, cell.target_means, cell.target_truth)
+    return d, cell
+
+
+@pytest.mark.parametrize("interpolation", ["paper", "kriging"])
+def test_register_matches_the_library(ra_files, interpolation):
+    d, cell = ra_files
+    out = d / f"report_{interpolation}.json"
+    proc = run("register", d / "fiducials.csv", "--targets", d / "targets.csv",
+               "--interpolation", interpolation, "--json", out)
+    assert "rho" in proc.stdout and "median TRE_u" in proc.stdout
+    rep = json.loads(out.read_text())
+    model = build_model(cell.fiducial_means, cell.fiducial_truth,
+                        ModelConfig(dimension=2, interpolation=interpolation),
+                        working_repeats=cell.fiducial_measurements)
+    err = target_errors(model, cell.target_means, cell.target_truth)
+    assert rep["dim"] == 2 and rep["n_fiducials"] == 277 and rep["sigma_source"] == "repeats"
+    np.testing.assert_allclose(rep["sigma_L"], model.sigma_l, rtol=1e-6, atol=1e-15)
+    assert rep["rho"] == pytest.approx(model.rho) and rep["recommendation"] == model.recommendation
+    assert rep["uncorrected"]["fre_rms"] == pytest.approx(model.uncorrected.fre_rms)
+    assert rep["corrected"]["fre_rms"] < 1e-8
+    np.testing.assert_allclose(rep["corrected"]["rotation"], model.corrected.rotation, atol=1e-12)
+    np.testing.assert_allclose([t["tre_c"] for t in rep["targets"]], err.tre_c, rtol=1e-9)
+    np.testing.assert_allclose([t["tre_u"] for t in rep["targets"]], err.tre_u, rtol=1e-9)
+    assert rep["summary"] == pytest.approx(err.summary())
+    assert {"id", "uncorrected", "corrected", "correction", "inside_hull",
+            "expected_error"} <= set(rep["targets"][0])
+    assert (rep["targets"][0]["expected_error"] is None) == (interpolation == "paper")
+
+
+def test_register_loo_closed_form_and_subsets(ra_files):
+    d, cell = ra_files
+    out = d / "loo.json"
+    ids = cell.fiducial_ids
+    run("register", d / "fiducials.csv", "--loo", "--restoration", "closed-form",
+        "--uncorrected-fit", ",".join(ids[i] for i in (0, 40, 120, 200, 270)),
+        "--corrected-fit", ",".join(ids[i] for i in (10, 150, 260)), "--json", out)
+    rep = json.loads(out.read_text())
+    model = build_model(cell.fiducial_means, cell.fiducial_truth,
+                        ModelConfig(dimension=2, restoration="closed-form",
+                                    uncorrected_subset=(0, 40, 120, 200, 270),
+                                    corrected_subset=(10, 150, 260)),
+                        working_repeats=cell.fiducial_measurements)
+    loo = leave_one_out(model, cell.fiducial_measurements)
+    assert rep["loo"]["tre_c_median"] == pytest.approx(float(np.median(loo.tre_c)))
+    assert len(rep["loo"]["fiducials"]) == 277 and rep["steps"] == 1
+    assert rep["targets"] == [] and rep["summary"]["tre_u_median"] is None
+
+
+@pytest.mark.parametrize("args, message", [
+    (["register", "missing.csv"], "no such file"),
+    (["register", "{bad}"], "column wz is not a number"),
+    (["register", "{good}", "--sigma", "-1"], "sigma must be"),
+    (["register", "{good}", "--corrected-fit", "nope"], "unknown fiducial id"),
+    (["register", "{few}"], "at least 4"),
+])
+def test_bad_input_is_one_clear_line(tmp_path, ra_files, args, message):
+    (tmp_path / "bad.csv").write_text("id,wx,wy,wz,dx,dy,dz\na,1,2,x,1,2,3\n")
+    (tmp_path / "few.csv").write_text("id,wx,wy,wz,dx,dy,dz\na,0,0,0,0,0,0\nb,1,0,0,1,0,0\n"
+                                      "c,0,1,0,0,1,0\n")
+    files = {"bad": tmp_path / "bad.csv", "few": tmp_path / "few.csv",
+             "good": ra_files[0] / "fiducials.csv"}
+    proc = run(*[a.format(**files) for a in args], check=False)
+    assert proc.returncode == 2
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_console_script_is_installed():
+    exe = os.path.join(os.path.dirname(sys.executable), "rbc-registration")
+    proc = subprocess.run([exe, "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0 and "reproduce" in proc.stdout

@@ -1,0 +1,172 @@
+"""``rbc-registration evaluate``: the same numbers as ``register`` on the same data as CSV, the
+node's ingestion (pairing, ids by proximity, rejections), dimension inference, the report
+directory, and no rclpy. No ROS graph."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rbc_registration import cli
+from rbc_registration.bag_commands import cell_messages
+from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io.bag import DEFAULT_TOPICS, OutMessage, write_bag
+from rbc_registration.io.csv_io import write_fiducials, write_targets
+
+M = 1e-3  # the synthetic cells are in mm; bags and these CSVs are in metres
+
+
+def cell_csv(cell, folder: Path) -> tuple[Path, Path]:
+    """FIDUCIALS.csv and TARGETS.csv of a cell, in metres, every measurement a row."""
+    fid, tgt = folder / "FIDUCIALS.csv", folder / "TARGETS.csv"
+    write_fiducials(fid, cell.fiducial_ids, [w * M for w in cell.fiducial_measurements],
+                    [t[None, :] * M for t in cell.fiducial_truth])
+    rows = [(tid, w * M, t * M) for tid, ws, t in zip(cell.target_ids, cell.target_measurements,
+                                                      cell.target_truth) for w in ws]
+    write_targets(tgt, [r[0] for r in rows], np.array([r[1] for r in rows]),
+                  np.array([r[2] for r in rows]))
+    return fid, tgt
+
+
+def run_json(argv, path: Path) -> dict:
+    assert cli.main(argv + ["--json", str(path)]) == 0
+    return json.loads(path.read_text())
+
+
+def assert_same_numbers(a, b, path="report", rtol=1e-9, atol=1e-15):
+    """Equal structure; numbers equal to rounding (running sums vs np.mean)."""
+    if isinstance(a, dict):
+        for key in a:
+            assert key in b, f"{path}.{key} missing"
+            assert_same_numbers(a[key], b[key], f"{path}.{key}", rtol, atol)
+    elif isinstance(a, list):
+        assert len(a) == len(b), path
+        for k, (x, y) in enumerate(zip(a, b)):
+            assert_same_numbers(x, y, f"{path}[{k}]", rtol, atol)
+    elif isinstance(a, float) and isinstance(b, float):
+        assert b == pytest.approx(a, rel=rtol, abs=atol), path
+    else:
+        assert a == b, path
+
+
+REGISTER_KEYS = ("dim", "n_fiducials", "n_measurements", "restoration", "steps",
+                 "interpolation", "sigma", "sigma_source", "sigma_L", "rho", "recommendation",
+                 "uncorrected", "corrected", "fiducials", "targets", "summary")
+
+
+@pytest.mark.parametrize("name, repeats, storage", [("RA", None, "sqlite3"),
+                                                    ("A", 3, "mcap")])
+def test_evaluate_bag_equals_register_csv(tmp_path, capsys, name, repeats, storage):
+    cell = make_cell(name, seed=2, repeats=repeats)
+    bag = tmp_path / "bag"
+    write_bag(bag, cell_messages(cell), storage, progress=False)
+    fid, tgt = cell_csv(cell, tmp_path)
+    reg = run_json(["register", str(fid), "--targets", str(tgt), "--unit", "m"],
+                   tmp_path / "register.json")
+    ev = run_json(["evaluate", str(bag), "--quiet"], tmp_path / "evaluate.json")
+    assert_same_numbers({k: reg[k] for k in REGISTER_KEYS}, ev)
+    assert ev["dim"] == cell.spec.dimension
+    assert len(ev["targets"]) == len(cell.target_ids) and "tre_u" in ev["targets"][0]
+    out = capsys.readouterr().out
+    assert "rho" in out and ev["recommendation"] in out
+
+
+def test_targets_csv_and_loo_and_model_options_match_register(tmp_path):
+    cell = make_cell("RA", seed=4)
+    bag = tmp_path / "bag"
+    write_bag(bag, [m for m in cell_messages(cell) if m.topic != DEFAULT_TOPICS.targets],
+              progress=False)
+    fid, tgt = cell_csv(cell, tmp_path)
+    opts = ["--sigma", "0.0002", "--interpolation", "kriging", "--restoration", "closed-form"]
+    reg = run_json(["register", str(fid), "--targets", str(tgt), "--unit", "m", "--loo"] + opts,
+                   tmp_path / "r.json")
+    ev = run_json(["evaluate", str(bag), "--targets", str(tgt), "--loo", "--quiet"] + opts,
+                  tmp_path / "e.json")
+    assert_same_numbers({k: reg[k] for k in REGISTER_KEYS + ("loo",)}, ev, rtol=1e-7)
+    assert ev["sigma_source"] == "given" and ev["interpolation"] == "kriging"
+
+
+def test_point_pairs_give_the_model_of_fiducial_pairs(tmp_path):
+    """The PointStamped streams go through the node's stamp pairing and id-by-proximity."""
+    cell = make_cell("A", seed=3, repeats=3)
+    write_bag(tmp_path / "pairs", cell_messages(cell), progress=False)
+    write_bag(tmp_path / "points", cell_messages(cell, points=True), progress=False)
+    a = run_json(["evaluate", str(tmp_path / "pairs"), "--quiet"], tmp_path / "a.json")
+    b = run_json(["evaluate", str(tmp_path / "points"), "--quiet"], tmp_path / "b.json")
+    assert [f["id"] for f in b["fiducials"]][:2] == ["auto-0000", "auto-0001"]
+    for f in a["fiducials"] + b["fiducials"]:
+        f.pop("id")
+    assert_same_numbers({k: a[k] for k in REGISTER_KEYS}, b)
+
+
+def test_rejections_are_counted_like_the_node(tmp_path):
+    cell = make_cell("RA", seed=0)
+    msgs = list(cell_messages(cell))
+    msgs[3] = msgs[3]._replace(frame_id="camera")                          # wrong frame
+    msgs[4] = msgs[4]._replace(xyz=(float("nan"), 0.0, 0.0))               # non-finite
+    bag = tmp_path / "bag"
+    write_bag(bag, msgs, progress=False)
+    report = run_json(["evaluate", str(bag), "--quiet"], tmp_path / "e.json")
+    assert report["bag"]["rejected"] == {"frame": 1, "nonfinite": 1, "outlier": 0,
+                                         "malformed": 0}
+    assert report["n_fiducials"] == len(cell.fiducial_ids) - 2
+
+
+def test_dimension_inference_and_override(tmp_path, capsys):
+    write_bag(tmp_path / "ra", cell_messages(make_cell("RA", seed=0)), progress=False)
+    write_bag(tmp_path / "a", cell_messages(make_cell("A", seed=0, repeats=2)), progress=False)
+    assert cli.main(["evaluate", str(tmp_path / "ra"), "--quiet"]) == 0
+    assert "dimension 2: every z in the bag is 0" in capsys.readouterr().out
+    assert cli.main(["evaluate", str(tmp_path / "a"), "--quiet"]) == 0
+    assert "dimension 3: the bag has non-zero z" in capsys.readouterr().out
+    report = run_json(["evaluate", str(tmp_path / "a"), "--quiet", "--dim", "2"],
+                      tmp_path / "e.json")
+    assert "dimension 2 (given)" in capsys.readouterr().out and report["dim"] == 2
+
+
+def test_report_directory(tmp_path, capsys):
+    bag = tmp_path / "bag"
+    write_bag(bag, cell_messages(make_cell("RA", seed=1)), "mcap", progress=False)
+    out = tmp_path / "report"
+    assert cli.main(["evaluate", str(bag), "--out", str(out), "--quiet"]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert names == {"report.json", "report.md", "mismatch_histograms.png", "fiducial_map.png",
+                     "tre_per_target.png", "delta_tre.png"}
+    md = (out / "report.md").read_text()
+    assert "| sigma | sigma_L0 | rho |" in md and "![delta_tre.png](delta_tre.png)" in md
+    assert json.loads((out / "report.json").read_text())["unit"] == "m"
+
+
+def test_targets_without_truth_give_no_tre(tmp_path, capsys):
+    cell = make_cell("RA", seed=0)
+    nan = (float("nan"),) * 3
+    msgs = [m._replace(destination=nan) if m.topic == DEFAULT_TOPICS.targets else m
+            for m in cell_messages(cell)]
+    write_bag(tmp_path / "bag", msgs, progress=False)
+    report = run_json(["evaluate", str(tmp_path / "bag"), "--quiet"], tmp_path / "e.json")
+    assert len(report["targets"]) == 80 and "tre_u" not in report["targets"][0]
+    assert "targets have no truth" in capsys.readouterr().out
+
+
+def test_too_few_fiducials_is_a_clear_error(tmp_path, capsys):
+    msgs = [OutMessage(DEFAULT_TOPICS.fiducial_pairs, "pair", k * 20_000_000, "tracker",
+                       (k * 0.1, 0.0, 0.0), f"F{k}", "world", (k * 0.1, 1.0, 0.0))
+            for k in range(1, 4)]
+    write_bag(tmp_path / "bag", msgs, progress=False)
+    assert cli.main(["evaluate", str(tmp_path / "bag"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "no model: 3 enabled fiducials, need min_fiducials=4" in err
+    assert "Traceback" not in err
+
+
+def test_evaluate_and_synth_bag_never_import_rclpy(tmp_path):
+    code = ("import sys; from rbc_registration.cli import main; "
+            f"assert main(['synth-bag', '--cell', 'RA', {str(tmp_path / 'b')!r}, '--quiet']) == 0;"
+            f"assert main(['evaluate', {str(tmp_path / 'b')!r}, '--quiet']) == 0; "
+            "assert 'rclpy' not in sys.modules, 'rclpy imported'")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
