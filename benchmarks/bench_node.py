@@ -126,8 +126,12 @@ def main() -> int:
         for msg in msgs:
             pub.publish(msg)
         t_pub = time.perf_counter() - t0
-        spin_until(executor, lambda: statuses and statuses[-1].n_measurements >= target, 300,
-                   "all pairs accepted")
+        try:
+            spin_until(executor, lambda: statuses and statuses[-1].n_measurements >= target,
+                       300, "all pairs accepted")
+        except RuntimeError:
+            print(f"only {statuses[-1].n_measurements - base} of {args.pairs} pairs accepted")
+            raise
         # The status is published at least every status_period (1 s) and after each rebuild;
         # find the first status that reported all pairs to bound the acceptance time.
         t_all = time.perf_counter() - t0

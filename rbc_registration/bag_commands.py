@@ -10,7 +10,7 @@ import argparse
 import math
 import sys
 from pathlib import Path
-from typing import Any, Iterator, Optional
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -139,8 +139,12 @@ def parse_params(items: list[str]) -> dict[str, Any]:
 # -- evaluate ----------------------------------------------------------------------------------
 def evaluate(args: argparse.Namespace) -> int:
     """``evaluate``: bag -> node's accumulation and model -> report (stdout, JSON, directory)."""
-    from .evaluate import (Targets, evaluate_contents, infer_dimension, print_summary,
-                           settings_for, write_report_dir)
+    try:  # the node's ingestion imports the ROS message packages (not rclpy)
+        from .evaluate import (Targets, evaluate_contents, infer_dimension, print_summary,
+                               settings_for, write_report_dir)
+    except ImportError as exc:
+        raise ValueError(f"{exc}: the ROS message packages are missing; run "
+                         "scripts/bootstrap.sh and source scripts/env.sh") from None
     from .io.bag import read_bag
     from .io.csv_io import read_targets
     from .io.report import write_json
@@ -167,6 +171,8 @@ def evaluate(args: argparse.Namespace) -> int:
             targets = Targets(table.ids, table.working, table.destination, str(args.targets))
             if contents.targets:
                 print(f"targets from {args.targets} (the bag's targets topic is ignored)")
+        if args.loo:
+            print("leave-one-out: one model rebuild per fiducial ...", flush=True)
         ev = evaluate_contents(contents, settings, targets, loo=args.loo)
     except KeyboardInterrupt:
         print("evaluate: interrupted", file=sys.stderr)
@@ -184,14 +190,17 @@ def evaluate(args: argparse.Namespace) -> int:
 # -- replay ------------------------------------------------------------------------------------
 def replay(args: argparse.Namespace) -> int:
     """``replay``: publish the bag with its timing scaled by ``--rate``."""
-    from .replay import replay as run
-
     try:
+        from .replay import replay as run
+
         result = run(args.bag, rate=args.rate, loop=args.loop, topics=args.topics,
                      wait=args.wait, progress=not args.quiet)
     except KeyboardInterrupt:
         print("replay: interrupted", file=sys.stderr)
         return 130
+    except ImportError as exc:
+        raise ValueError(f"{exc}: rclpy or a message package is missing; run "
+                         "scripts/bootstrap.sh and source scripts/env.sh") from None
     print(f"replay: published {result.published} message(s) on {result.topics} topic(s) in "
           f"{result.seconds:.2f} s")
     return 0

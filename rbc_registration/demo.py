@@ -235,7 +235,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print("demo: interrupted; the node is stopped", file=sys.stderr)
         return 130
-    except (DemoError, ValueError, OSError) as exc:
+    except (DemoError, ValueError, OSError, ImportError) as exc:
         print(f"demo: error: {exc}", file=sys.stderr)
         return 1
     return 0 if summary["agree"] else 1

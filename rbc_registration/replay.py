@@ -14,13 +14,13 @@ from typing import Any, NamedTuple, Optional, Sequence, Union
 
 from .io.bag import BagError, Progress, RawMessage, read_raw
 
-#: Reliable, volatile, keep-all: a slow subscriber delays the replay instead of losing messages.
 SETTLE_S = 0.5      # after the first subscriber matched: time for the others to be discovered
 ACK_TIMEOUT_S = 10.0
 
 
 class ReplayResult(NamedTuple):
-    """What a replay did: messages published, distinct topics, wall time [s], passes."""
+    """What a replay did: messages published, distinct topics, wall time of publishing [s]
+    (without the final wait for acknowledgements), passes."""
 
     published: int
     topics: int
@@ -81,17 +81,19 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
         raise ValueError(f"rate must be > 0, got {rate!r}")
     messages = read_raw(bag, topics, progress=progress)
     types = {m.topic: m.msgtype for m in messages}
-    classes = {}
+    classes, skipped = {}, []
     for topic, msgtype in types.items():
         try:
             classes[topic] = message_class(msgtype)
         except BagError:
             if topics:
                 raise
+            skipped.append(f"{topic} [{msgtype}]")
             log(f"replay: skipping {topic}: no Python message type {msgtype}")
     messages = [m for m in messages if m.topic in classes]
     if not messages:
-        raise BagError(f"bag {bag}: no messages to replay")
+        raise BagError(f"bag {bag}: no messages to replay" + (
+            f" (no Python message type for {', '.join(skipped)})" if skipped else ""))
 
     import rclpy
     from rclpy.duration import Duration
@@ -107,15 +109,18 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
     try:
         node = rclpy.create_node("rbc_bag_replay", context=context,
                                  start_parameter_services=False)
+        # Reliable, volatile, keep-all: a slow subscriber delays the replay instead of losing
+        # messages (the node's inputs are reliable, depth 1000).
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
         publishers = {t: node.create_publisher(c, t, qos) for t, c in classes.items()}
         _wait_for_subscribers(publishers, wait, log)
         started = time.monotonic()
         published, passes = _play(messages, publishers, rate, loop, progress)
-        for pub in publishers.values():
+        seconds = time.monotonic() - started
+        for pub in publishers.values():  # reliable delivery before the publishers go away
             pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
-        return ReplayResult(published, len(publishers), time.monotonic() - started, passes)
+        return ReplayResult(published, len(publishers), seconds, passes)
     finally:
         if node is not None:
             node.destroy_node()

@@ -29,7 +29,7 @@ FREEZE=0
 for arg in "$@"; do
   case "$arg" in
     --freeze) FREEZE=1 ;;
-    -h|--help) sed -n '2,21p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,19p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bootstrap: unknown argument: $arg" >&2; exit 2 ;;
   esac
 done
@@ -99,11 +99,15 @@ if stamp_ok deps "$DEPS_HASH" && stamp_ok interfaces "$IFACE_HASH" \
     && stamp_ok project "$PROJECT_HASH" && check_imports; then
   say "venv up to date ($VENV)"
   if [ "$FREEZE" = 0 ]; then exit 0; fi
+elif stamp_ok deps "$DEPS_HASH" && stamp_ok interfaces "$IFACE_HASH" \
+    && stamp_ok project "$PROJECT_HASH"; then
+  say "venv is stamped up to date but does not import: rebuilding the interfaces and the project"
+  rm -f "$STAMPS/interfaces" "$STAMPS/project"
 fi
 
 # --- 2. Python packages ------------------------------------------------------------------------
 if ! stamp_ok deps "$DEPS_HASH"; then
-  say "installing ROS 2 wheels and Python dependencies (about 30 s)"
+  say "installing ROS 2 wheels and Python dependencies (about 1 min)"; t0=$SECONDS
   # `pip install -e . --no-build-isolation` below needs setuptools >= 64 (PEP 660) in the venv.
   if ! "$VPY" -c 'import setuptools, sys; sys.exit(int(setuptools.__version__.split(".")[0]) < 64)' \
       >/dev/null 2>&1; then
@@ -112,11 +116,12 @@ if ! stamp_ok deps "$DEPS_HASH"; then
   run_logged pip-install "$VPY" -m pip install -r "$ROOT/requirements.txt" -c "$ROOT/constraints.txt"
   rm -f "$STAMPS/interfaces"  # reinstalled wheels bring back the unpatched cmake files
   stamp_set deps "$DEPS_HASH"
+  say "  done in $((SECONDS - t0)) s"
 fi
 
 # --- 3. Interface package ----------------------------------------------------------------------
 if ! stamp_ok interfaces "$IFACE_HASH"; then
-  say "building rbc_registration_interfaces with cmake (about 20 s)"
+  say "building rbc_registration_interfaces with cmake (about 30 s)"; t0=$SECONDS
   if ! command -v cmake >/dev/null 2>&1; then
     say "cmake not found: installing it from PyPI into the venv"
     run_logged pip-cmake "$VPY" -m pip install 'cmake>=3.22,<4'
@@ -146,6 +151,7 @@ if ! stamp_ok interfaces "$IFACE_HASH"; then
 from rbc_registration_interfaces.srv import CorrectTarget' \
     || die "rbc_registration_interfaces was built but does not import"
   stamp_set interfaces "$IFACE_HASH"
+  say "  done in $((SECONDS - t0)) s"
 fi
 
 # --- 4. The project, editable ------------------------------------------------------------------
@@ -185,7 +191,7 @@ for dist in md.distributions():
     # that are not distributions on any index; the editable project is not pinned either.
     if (dist.read_text('INSTALLER') or '').strip() != 'pip' or dist.read_text('direct_url.json'):
         continue
-    if name.lower() in ('pip', 'setuptools', 'wheel'):
+    if name.lower() in ('pip', 'setuptools'):
         continue
     pins[name.lower()] = f'{name}=={dist.version}'
 print('\n'.join(sorted(pins.values(), key=str.lower)))

@@ -6,6 +6,7 @@ tests must be able to prove that ``rbc_registration.core`` never loads it.
 """
 
 import os
+import sys
 
 import pytest
 
@@ -19,6 +20,11 @@ os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 # other.
 ROS_DOMAIN_ID = os.getpid() % 101 + 1
 os.environ['ROS_DOMAIN_ID'] = str(ROS_DOMAIN_ID)
+# In the pip venv (scripts/bootstrap.sh) the ament index is the venv prefix; scripts/env.sh sets
+# this too, but plain `.venv/bin/python -m pytest` (an IDE) does not. A sourced ROS keeps its own.
+if not os.environ.get('AMENT_PREFIX_PATH') and os.path.isdir(
+        os.path.join(sys.prefix, 'share', 'ament_index')):
+    os.environ['AMENT_PREFIX_PATH'] = sys.prefix
 
 
 def pytest_configure(config):

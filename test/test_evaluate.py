@@ -75,7 +75,7 @@ def test_evaluate_bag_equals_register_csv(tmp_path, capsys, name, repeats, stora
 
 
 def test_targets_csv_and_loo_and_model_options_match_register(tmp_path):
-    cell = make_cell("RA", seed=4)
+    cell = make_cell("A", seed=4, repeats=2)
     bag = tmp_path / "bag"
     write_bag(bag, [m for m in cell_messages(cell) if m.topic != DEFAULT_TOPICS.targets],
               progress=False)

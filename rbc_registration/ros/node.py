@@ -43,7 +43,9 @@ except ImportError:  # pragma: no cover - depends on the installation
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-INPUT = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+# Measurements are precious: KEEP_ALL + RELIABLE, so a burst faster than the node makes the
+# publisher wait instead of samples being overwritten.
+INPUT = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
                    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 RECOMPUTE_TIMEOUT_S = 60.0
 
@@ -298,7 +300,16 @@ def main(args: Optional[list[str]] = None) -> None:
     code = 0
     try:
         node = RegistrationNode()
-        executor = MultiThreadedExecutor(num_threads=2)
+        import os
+        kind = os.environ.get("RBC_EXECUTOR", "multi")
+        if kind == "single":
+            from rclpy.executors import SingleThreadedExecutor
+            executor = SingleThreadedExecutor()
+        elif kind == "events":
+            from rclpy.experimental import EventsExecutor
+            executor = EventsExecutor()
+        else:
+            executor = MultiThreadedExecutor(num_threads=2)
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -1,0 +1,211 @@
+"""``rbc-registration replay``: a bag written by ``synth-bag`` replayed (separate process) into a
+live ``registration_node`` (separate process) gives the model ``evaluate`` computes offline from
+the same bag; ``--rate`` scales the timing, ``--loop`` stops cleanly on Ctrl-C; bad input is a
+clear error.
+
+DDS stays on loopback: test/conftest.py sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a
+per-process ROS_DOMAIN_ID, which the subprocesses inherit.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from rbc_registration import cli
+
+NAME = f"replay_node_{os.getpid()}"
+ENV = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+
+
+def start_node(state_dir, log):
+    args = [sys.executable, "-m", "rbc_registration.ros.node", "--ros-args", "-r",
+            f"__node:={NAME}", "-p", "dimension:=2", "-p", f"state_dir:={state_dir}",
+            "-p", "debounce_period:=0.05"]
+    return subprocess.Popen(args, env=ENV, stdout=log, stderr=subprocess.STDOUT)
+
+
+def replay_process(bag, *options):
+    return subprocess.Popen([sys.executable, "-m", "rbc_registration.cli", "replay", str(bag),
+                             "--quiet", *options], env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def stop(proc):
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="module")
+def cell_bag(tmp_path_factory):
+    """The RA cell as written by synth-bag for node NAME, and evaluate's report of it."""
+    root = tmp_path_factory.mktemp("replay")
+    bag = root / "ra"
+    assert cli.main(["synth-bag", "--cell", "RA", str(bag), "--storage", "mcap",
+                     "--node-name", NAME, "--quiet"]) == 0
+    report = root / "evaluate.json"
+    assert cli.main(["evaluate", str(bag), "--node-name", NAME, "--json", str(report),
+                     "--quiet"]) == 0
+    return bag, json.loads(report.read_text())
+
+
+# -- live -----------------------------------------------------------------------------------------
+@pytest.mark.ros
+def test_replayed_bag_gives_the_model_of_evaluate(tmp_path, cell_bag):
+    pytest.importorskip("rbc_registration_interfaces.msg")
+    from geometry_msgs.msg import PointStamped
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    from rbc_registration.io.bag import Topics, read_bag
+    from rbc_registration_interfaces.msg import RegistrationStatus
+    from rbc_registration_interfaces.srv import CorrectTargets
+    from ros_helpers import RosHarness, wait_for
+
+    bag, report = cell_bag
+    contents = read_bag(bag, Topics.for_node(NAME), progress=False)
+    n_measurements = report["n_measurements"]
+    latest = {}
+    with open(tmp_path / "node.log", "w") as log:
+        node = start_node(tmp_path / "state", log)
+        harness = RosHarness()
+        try:
+            latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            harness.client.create_subscription(RegistrationStatus, f"/{NAME}/status",
+                                               lambda m: latest.update(status=m), latched)
+            wait_for(lambda: "status" in latest, 30, "the node's status")
+            player = replay_process(bag, "--rate", "50")
+            out, err = player.communicate(timeout=120)
+            assert player.returncode == 0, err
+            assert f"published {len(contents.inputs) + len(contents.targets)} message" in out
+
+            def complete():
+                s = latest["status"]
+                return (s.n_measurements == n_measurements and s.n_pending == 0
+                        and s.model_valid)
+            wait_for(complete, 60, f"{n_measurements} measurements in the model")
+            status = latest["status"]
+            request = CorrectTargets.Request()
+            for m in contents.targets:
+                t = PointStamped()
+                t.header.frame_id = "tracker"
+                t.point.x, t.point.y, t.point.z = m.working
+                request.targets.append(t)
+            response = harness.call(CorrectTargets, f"/{NAME}/correct_targets", request)
+        finally:
+            harness.stop()
+            stop(node)
+    assert status.n_fiducials == report["n_fiducials"] and status.n_rejected == 0
+    assert status.dimension == 2 and status.recommendation == report["recommendation"]
+    assert status.rho == pytest.approx(report["rho"], rel=1e-12)
+    assert status.sigma == pytest.approx(report["sigma"], rel=1e-12)
+    np.testing.assert_allclose(status.sigma_l, report["sigma_L"], rtol=1e-9, atol=1e-15)
+    assert response.success, response.message
+    for result, expected in zip(response.results, report["targets"], strict=True):
+        np.testing.assert_allclose([result.corrected.point.x, result.corrected.point.y],
+                                   expected["corrected"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose([result.uncorrected.point.x, result.uncorrected.point.y],
+                                   expected["uncorrected"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose([result.correction.x, result.correction.y],
+                                   expected["correction"], rtol=0, atol=1e-12)
+
+
+@pytest.mark.ros
+def test_rate_scales_timing_and_loop_stops_on_ctrl_c(cell_bag):
+    pytest.importorskip("rbc_registration_interfaces.msg")
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from rbc_registration_interfaces.msg import FiducialPair
+    from ros_helpers import RosHarness, wait_for
+
+    bag, report = cell_bag
+    n, rate = report["n_measurements"], 25.0
+    arrivals = []
+    lock = threading.Lock()
+
+    def on_pair(_msg):
+        with lock:
+            arrivals.append(time.monotonic())
+
+    harness = RosHarness()
+    try:
+        harness.client.create_subscription(FiducialPair, f"/{NAME}/fiducial_pairs", on_pair,
+                                           QoSProfile(depth=5000,
+                                                      reliability=ReliabilityPolicy.RELIABLE))
+        player = replay_process(bag, "--rate", str(rate), "--loop")
+        wait_for(lambda: len(arrivals) > n + 10, 120, "the second pass of the loop")
+        player.send_signal(signal.SIGINT)
+        out, err = player.communicate(timeout=30)
+    finally:
+        harness.stop()
+        if player.poll() is None:
+            player.kill()
+            player.wait()
+    assert player.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    recorded_span = (n - 1) * 0.02  # synth-bag: measurements 20 ms apart
+    assert arrivals[n - 1] - arrivals[0] >= 0.8 * recorded_span / rate
+
+
+@pytest.mark.ros
+def test_demo_agrees_with_evaluate_and_leaves_no_process(tmp_path):
+    pytest.importorskip("rbc_registration_interfaces.msg")
+    out = tmp_path / "demo_out"
+    done = subprocess.run([sys.executable, "-m", "rbc_registration.demo", "--out", str(out)],
+                          env=ENV, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "-> agree" in done.stdout and "decision: apply" in done.stdout
+    summary = json.loads((out / "demo.json").read_text())
+    assert summary["agree"] and summary["tre_c_median"] < summary["tre_u_median"]
+    assert {"report.md", "report.json", "fiducial_map.png", "delta_tre.png"} <= {
+        p.name for p in out.iterdir()}
+    state_dir = done.stdout.split("state_dir:=")[1].split(")")[0]
+    for proc in os.listdir("/proc"):
+        if proc.isdigit():
+            try:
+                with open(f"/proc/{proc}/cmdline", "rb") as fh:
+                    assert state_dir.encode() not in fh.read(), "the demo left its node running"
+            except OSError:
+                pass
+
+
+# -- errors (no ROS graph needed) -----------------------------------------------------------------
+def thing_bag(path):
+    """A bag with one topic of a type no Python package provides."""
+    store = get_typestore(Stores.ROS2_KILTED)
+    store.register(get_types_from_msg("float64 x\n", "nonexistent_pkg/msg/Thing"))
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conn = w.add_connection("/thing", "nonexistent_pkg/msg/Thing", typestore=store)
+        w.write(conn, 1, store.serialize_cdr(store.types["nonexistent_pkg/msg/Thing"](x=1.0),
+                                             "nonexistent_pkg/msg/Thing"))
+    return path
+
+
+def test_replay_of_a_type_without_python_definition_is_a_clear_error(tmp_path, capsys):
+    bag = thing_bag(tmp_path / "thing")
+    assert cli.main(["replay", str(bag), "--topics", "/thing", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "missing type definition: no Python message type nonexistent_pkg/msg/Thing" in err
+    assert cli.main(["replay", str(bag), "--quiet"]) == 2
+    captured = capsys.readouterr()
+    assert "skipping /thing" in captured.out and "no messages to replay" in captured.err
+
+
+@pytest.mark.parametrize("rate", ["0", "-1", "nan", "fast"])
+def test_replay_rate_must_be_positive(rate, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["replay", "bag", "--rate", rate])
+    assert exc.value.code == 2 and "--rate" in capsys.readouterr().err
