@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -96,6 +97,12 @@ def test_bad_input_is_one_clear_line(tmp_path, ra_files, args, message):
 
 
 def test_console_script_is_installed():
-    exe = os.path.join(os.path.dirname(sys.executable), "rbc-registration")
+    # pip puts it beside the interpreter; colcon in <prefix>/lib/rbc_registration (for ros2 run)
+    candidates = [os.path.join(os.path.dirname(sys.executable), "rbc-registration"),
+                  shutil.which("rbc-registration") or ""]
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        candidates.append(os.path.join(prefix, "lib", "rbc_registration", "rbc-registration"))
+    exe = next((c for c in candidates if c and os.access(c, os.X_OK)), None)
+    assert exe, f"rbc-registration not found in {candidates}"
     proc = subprocess.run([exe, "--help"], capture_output=True, text=True)
     assert proc.returncode == 0 and "reproduce" in proc.stdout

@@ -96,15 +96,23 @@ class _Fiducial:
     def __init__(self, dimension: int) -> None:
         self.working: list[tuple[float, ...]] = []
         self.destination: list[tuple[float, ...]] = []
-        self.sum_w = np.zeros(dimension)
-        self.sum_d = np.zeros(dimension)
+        self.sum_w = [0.0] * dimension
+        self.sum_d = [0.0] * dimension
         self.enabled = True
 
-    def mean_w(self) -> NDArray[np.float64]:
-        return self.sum_w / len(self.working)
+    def add(self, working: tuple[float, ...], destination: tuple[float, ...]) -> None:
+        self.working.append(working)
+        self.destination.append(destination)
+        self.sum_w = [s + v for s, v in zip(self.sum_w, working, strict=True)]
+        self.sum_d = [s + v for s, v in zip(self.sum_d, destination, strict=True)]
 
-    def mean_d(self) -> NDArray[np.float64]:
-        return self.sum_d / len(self.destination)
+    def mean_w(self) -> tuple[float, ...]:
+        n = len(self.working)
+        return tuple(s / n for s in self.sum_w)
+
+    def mean_d(self) -> tuple[float, ...]:
+        n = len(self.destination)
+        return tuple(s / n for s in self.sum_d)
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> float:
@@ -113,7 +121,8 @@ def _positive(name: str, value: float, allow_zero: bool = False) -> float:
     except (TypeError, ValueError):
         raise TypeError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'} and finite, got {value!r}")
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be {bound} and finite, got {value!r}")
     return v
 
 
@@ -177,17 +186,19 @@ class FiducialAccumulator:
         self.rejected[reason] += 1
         return RejectedMeasurement(reason, message)
 
-    def _coords(self, name: str, xyz: ArrayLike) -> NDArray[np.float64]:
+    def _coords(self, name: str, xyz: ArrayLike) -> tuple[float, ...]:
+        # Plain floats, not numpy: a 3-vector per message is faster without array overhead.
         try:
-            arr = np.asarray(xyz, dtype=np.float64)
+            values = tuple(float(v) for v in xyz)  # type: ignore[union-attr]
         except (TypeError, ValueError):
-            raise self.reject("malformed", f"{name} must be numeric, got {xyz!r}") from None
-        if arr.shape not in ((3,), (self.dimension,)):
-            raise self.reject("malformed", f"{name} must have shape (3,) or ({self.dimension},), "
-                                            f"got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise self.reject("nonfinite", f"{name} has NaN or inf: {arr.tolist()}")
-        return arr[:self.dimension]
+            raise self.reject("malformed", f"{name} must be a sequence of numbers, "
+                                            f"got {xyz!r}") from None
+        if len(values) not in (3, self.dimension):
+            raise self.reject("malformed", f"{name} must have 3 or {self.dimension} "
+                                            f"coordinates, got {len(values)}")
+        if not all(map(math.isfinite, values)):
+            raise self.reject("nonfinite", f"{name} has NaN or inf: {list(values)}")
+        return values[:self.dimension]
 
     def prepare(self, fiducial_id: Optional[str], working_xyz: ArrayLike,
                 destination_xyz: ArrayLike, working_frame: str = "", destination_frame: str = "",
@@ -233,15 +244,15 @@ class FiducialAccumulator:
         if fiducial is not None and self.outlier_distance > 0:
             for name, point, mean in (("working", w, fiducial.mean_w()),
                                       ("destination", d, fiducial.mean_d())):
-                dist = float(np.linalg.norm(point - mean))
+                dist = math.dist(point, mean)
                 if dist > self.outlier_distance:
                     raise self.reject(
                         "outlier", f"fiducial {fid!r}: {name} point is {dist:.6g} from the mean "
                                    f"of its {len(fiducial.working)} earlier repeat(s), more than "
                                    f"outlier_distance {self.outlier_distance:g}")
-        return Measurement(fid, tuple(w.tolist()), tuple(d.tolist()), stamp, auto)
+        return Measurement(fid, w, d, stamp, auto)
 
-    def _nearest(self, destination: NDArray[np.float64]) -> Optional[str]:
+    def _nearest(self, destination: tuple[float, ...]) -> Optional[str]:
         if not self._order:
             return None
         dist = np.linalg.norm(self._dest_means - destination, axis=1)
@@ -280,10 +291,7 @@ class FiducialAccumulator:
             match = _AUTO_ID.match(fid)
             if match:
                 self._next_auto = max(self._next_auto, int(match.group(1)) + 1)
-        fiducial.working.append(record.working)
-        fiducial.destination.append(record.destination)
-        fiducial.sum_w += record.working
-        fiducial.sum_d += record.destination
+        fiducial.add(tuple(record.working), tuple(record.destination))
         self._dest_means[self._index[fid]] = fiducial.mean_d()
         self.n_measurements += 1
 

@@ -43,11 +43,11 @@ def array_to_vector3(xyz: Sequence[float]) -> Vector3:
 
 
 class PairArgs(NamedTuple):
-    """A FiducialPair as the arguments of ``FiducialAccumulator.prepare``."""
+    """A FiducialPair as the arguments of ``FiducialAccumulator.prepare`` (points (3,))."""
 
     fiducial_id: Optional[str]
-    working_xyz: NDArray[np.float64]
-    destination_xyz: NDArray[np.float64]
+    working_xyz: Sequence[float]
+    destination_xyz: Sequence[float]
     working_frame: str
     destination_frame: str
     stamp_s: float
@@ -55,14 +55,15 @@ class PairArgs(NamedTuple):
 
 def fiducial_pair_to_args(msg: Any) -> PairArgs:
     """``rbc_registration_interfaces/FiducialPair`` -> :class:`PairArgs` (empty id -> None)."""
-    return PairArgs(msg.fiducial_id or None, point_to_array(msg.working_point),
-                    point_to_array(msg.destination_point), msg.header.frame_id,
+    w, d = msg.working_point, msg.destination_point
+    return PairArgs(msg.fiducial_id or None, (w.x, w.y, w.z), (d.x, d.y, d.z), msg.header.frame_id,
                     msg.destination_frame_id, stamp_to_seconds(msg.header.stamp))
 
 
-def point_stamped_to_tuple(msg: PointStamped) -> tuple[NDArray[np.float64], str, float]:
-    """``geometry_msgs/PointStamped`` -> (xyz (3,), frame_id, stamp [s])."""
-    return point_to_array(msg.point), msg.header.frame_id, stamp_to_seconds(msg.header.stamp)
+def point_stamped_to_tuple(msg: PointStamped) -> tuple[tuple[float, float, float], str, float]:
+    """``geometry_msgs/PointStamped`` -> ((x, y, z), frame_id, stamp [s])."""
+    p = msg.point
+    return (p.x, p.y, p.z), msg.header.frame_id, stamp_to_seconds(msg.header.stamp)
 
 
 def targets_to_array(targets: Sequence[PointStamped], working_frame: str,
@@ -104,11 +105,11 @@ def target_corrections_to_msgs(tc: Any, z: NDArray[np.float64], applied: bool,
     expected = np.asarray(tc.expected_error, dtype=np.float64)
     out = []
     for k in range(len(z)):
-        header = {"frame_id": destination_frame, "stamp": stamps[k]}
         c = PointStamped(point=array_to_point(corrected[k]))
         u = PointStamped(point=array_to_point(uncorrected[k]))
-        c.header.frame_id = u.header.frame_id = header["frame_id"]
-        c.header.stamp = u.header.stamp = header["stamp"]
+        for point in (c, u):
+            point.header.frame_id = destination_frame
+            point.header.stamp = stamps[k]
         out.append(TargetCorrection(destination=c if applied else u, corrected=c, uncorrected=u,
                                     correction=array_to_vector3(correction[k]),
                                     correction_applied=bool(applied),

@@ -17,7 +17,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, TransformStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -32,6 +33,7 @@ from rbc_registration_interfaces.srv import CorrectTarget, CorrectTargets, SetFi
 
 from . import conversions as conv
 from . import params, persistence, reports
+from .guards import guard_input, guard_service
 from .ingest import Ingest
 from .worker import EMPTY_STATE, ModelState, RecomputeWorker, build_state
 
@@ -44,9 +46,11 @@ LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Measurements are precious: KEEP_ALL + RELIABLE, so a burst faster than the node makes the
-# publisher wait instead of samples being overwritten.
-INPUT = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
-                   reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+# publisher wait instead of samples being overwritten (`input_reliability` best_effort: depth 1000).
+INPUT = {"reliable": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
+                                reliability=ReliabilityPolicy.RELIABLE),
+         "best_effort": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                                   reliability=ReliabilityPolicy.BEST_EFFORT)}
 RECOMPUTE_TIMEOUT_S = 60.0
 
 
@@ -85,13 +89,14 @@ class RegistrationNode(Node):
         self._pub_markers = self.create_publisher(MarkerArray, "~/markers", LATCHED)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
 
-        inputs = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(FiducialPair, "~/fiducial_pairs", self._on_fiducial_pair, INPUT,
-                                 callback_group=inputs)
-        self.create_subscription(PointStamped, "~/working_point", self._on_working_point, INPUT,
-                                 callback_group=inputs)
-        self.create_subscription(PointStamped, "~/destination_point", self._on_destination_point,
-                                 INPUT, callback_group=inputs)
+        inputs, qos = MutuallyExclusiveCallbackGroup(), INPUT[s.input_reliability]
+        for msg_type, topic, callback in (
+                (FiducialPair, "~/fiducial_pairs", self._on_fiducial_pair),
+                (PointStamped, "~/working_point", self._on_working_point),
+                (PointStamped, "~/destination_point", self._on_destination_point)):
+            self.create_subscription(msg_type, topic, guard_input(self.get_logger(), topic,
+                                                                  callback),
+                                     qos, callback_group=inputs)
         services = ReentrantCallbackGroup()
         for srv_type, name, callback in (
                 (CorrectTarget, "~/correct_target", self._on_correct_target),
@@ -100,7 +105,8 @@ class RegistrationNode(Node):
                 (Trigger, "~/reset", self._on_reset),
                 (Trigger, "~/recompute", self._on_recompute),
                 (Trigger, "~/save", self._on_save)):
-            self.create_service(srv_type, name, callback, callback_group=services)
+            self.create_service(srv_type, name, guard_service(self.get_logger(), name, callback),
+                                callback_group=services)
         self.create_timer(s.status_period, self._publish_status,
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -188,28 +194,32 @@ class RegistrationNode(Node):
         return path
 
     # -- services -----------------------------------------------------------------------------
-    def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str]:
-        """Answer targets from the current model: (results, "") or ([], reason)."""
+    def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
+        """Answer from one snapshot of the model: (results, "", note) or ([], reason, "")."""
         state, s = self._state, self._settings
-        if state.model is None:
-            return [], f"no model yet: {state.error}"
+        model = state.model
+        if model is None:
+            return [], f"no model yet: {state.error}", ""
         try:
             points, z = conv.targets_to_array(targets, s.working_frame, s.dimension)
-            tc = state.model.correct(points)
+            tc = model.correct(points)
         except ValueError as exc:
-            return [], str(exc)
-        applied = params.corrections_applied(s.apply_corrections, state.model.recommendation)
+            return [], str(exc), ""
+        applied = params.corrections_applied(s.apply_corrections, model.recommendation)
+        rho = model.rho if model.rho is not None else float("nan")
+        note = (f"corrections {'applied' if applied else 'not applied'} (mode "
+                f"{s.apply_corrections}, recommendation {model.recommendation}, rho {rho:.3g})")
         return conv.target_corrections_to_msgs(tc, z, applied, s.destination_frame,
-                                               [t.header.stamp for t in targets]), ""
+                                               [t.header.stamp for t in targets]), "", note
 
     def _on_correct_target(self, request: CorrectTarget.Request,
                            response: CorrectTarget.Response) -> CorrectTarget.Response:
-        results, error = self._correct([request.target])
+        results, error, note = self._correct([request.target])
         if error:
             response.success, response.message = False, error
             return response
         conv.fill_correct_target_response(response, results[0])
-        response.message = self._answer_note(results[0].correction_applied)
+        response.message = note
         return response
 
     def _on_correct_targets(self, request: CorrectTargets.Request,
@@ -217,16 +227,9 @@ class RegistrationNode(Node):
         if not request.targets:
             response.success, response.message = True, "no targets"
             return response
-        results, error = self._correct(list(request.targets))
-        response.success, response.results = not error, results
-        response.message = error or self._answer_note(results[0].correction_applied)
+        results, error, note = self._correct(list(request.targets))
+        response.success, response.results, response.message = not error, results, error or note
         return response
-
-    def _answer_note(self, applied: bool) -> str:
-        model = self._state.model
-        return (f"corrections {'applied' if applied else 'not applied'} (mode "
-                f"{self._settings.apply_corrections}, recommendation {model.recommendation}, "
-                f"rho {model.rho if model.rho is not None else float('nan'):.3g})")
 
     def _on_set_fiducial_enabled(self, request: SetFiducialEnabled.Request,
                                  response: SetFiducialEnabled.Response) -> Any:
@@ -242,8 +245,9 @@ class RegistrationNode(Node):
             self._state = EMPTY_STATE
         response.success, response.message = self._ingest.reset()
         self._publish_status()
-        self._pub_markers.publish(reports.markers_msg(EMPTY_STATE, self._settings,
-                                                      self.get_clock().now().to_msg()))
+        with self._pub_lock:
+            self._pub_markers.publish(reports.markers_msg(EMPTY_STATE, self._settings,
+                                                          self.get_clock().now().to_msg()))
         return response
 
     def _on_recompute(self, request: Trigger.Request, response: Trigger.Response) -> Any:
@@ -290,7 +294,7 @@ class RegistrationNode(Node):
 
 
 def main(args: Optional[list[str]] = None) -> None:
-    """Console script ``registration_node``: spin the node on a multi-threaded executor.
+    """Console script ``registration_node``: spin the node on a single-threaded executor.
 
     Exits with status 1 when a parameter is invalid or ``state_dir`` holds a journal of
     another setup (the reason is logged).
@@ -300,21 +304,14 @@ def main(args: Optional[list[str]] = None) -> None:
     code = 0
     try:
         node = RegistrationNode()
-        import os
-        kind = os.environ.get("RBC_EXECUTOR", "multi")
-        if kind == "single":
-            from rclpy.executors import SingleThreadedExecutor
-            executor = SingleThreadedExecutor()
-        elif kind == "events":
-            from rclpy.experimental import EventsExecutor
-            executor = EventsExecutor()
-        else:
-            executor = MultiThreadedExecutor(num_threads=2)
+        # Single-threaded: in rclpy it takes messages about twice as fast as the multi-threaded
+        # executor; model rebuilds run in their own thread, so services still answer meanwhile.
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as exc:
+    except (ValueError, ParameterException) as exc:
         get_logger("registration_node").fatal(f"cannot start: {exc}")
         code = 1
     finally:

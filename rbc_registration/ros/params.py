@@ -29,6 +29,7 @@ RESTORATIONS = ("iterative", "closed-form")
 INTERPOLATIONS = ("paper", "kriging")
 CORRECTION_MODES = ("auto", "on", "off")
 TF_MODES = ("corrected", "uncorrected", "none")
+RELIABILITIES = ("reliable", "best_effort")
 
 SPECS: dict[str, Spec] = {
     "working_frame": Spec("tracker", "Frame the working points (fiducials, targets) are measured "
@@ -43,8 +44,11 @@ SPECS: dict[str, Spec] = {
                               low=1, high=20),
     "interpolation": Spec("paper", "Interpolation of the fiducial corrections at a target "
                           "(paper eq. 5): 'paper' or 'kriging'.", choices=INTERPOLATIONS),
-    "sigma": Spec(0.0, "Known measurement noise sigma per axis in the working frame [m]; 0 = "
-                  "unknown: estimated from repeats when a fiducial has >= 2.", low=0.0, high=1.0),
+    "sigma": Spec(0.0, "Known noise sigma [m] of one working-frame measurement, in the sense of "
+                  "the sigma estimated from repeats (RMS distance of a measurement from the "
+                  "fiducial's mean, all axes together; per axis it is sigma / sqrt(dimension)). "
+                  "0 = unknown: estimated from fiducials measured >= 2 times.", low=0.0,
+                  high=1.0),
     "rho_reject": Spec(1.0, "rho = sigma_L0 / sigma below this: corrections are not applied "
                        "(paper: rho < 1 makes registration worse). Must be <= rho_apply.",
                        low=0.0, high=1e6),
@@ -68,6 +72,10 @@ SPECS: dict[str, Spec] = {
     "point_buffer": Spec(100, "Unmatched ~/working_point or ~/destination_point messages kept "
                          "per stream for pairing. Read-only.", read_only=True, low=1,
                          high=100_000),
+    "input_reliability": Spec("reliable", "QoS reliability of the three input topics: "
+                              "'reliable' (KEEP_ALL: a burst makes the publisher wait, nothing is "
+                              "dropped) or 'best_effort' (matches best-effort driver publishers; "
+                              "depth 1000). Read-only.", read_only=True, choices=RELIABILITIES),
     "state_dir": Spec("", "Directory of the measurement journal and the calibration snapshot "
                       "('~' expanded); empty = no persistence. Read-only.", read_only=True),
     "journal_fsync": Spec(False, "fsync the journal after every record (survives power loss; "
@@ -105,6 +113,7 @@ class Settings:
     outlier_distance: float
     debounce_period: float
     point_buffer: int
+    input_reliability: str
     state_dir: str
     journal_fsync: bool
     status_period: float

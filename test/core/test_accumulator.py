@@ -4,6 +4,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rbc_registration.core.accumulator import (REJECT_REASONS, EnabledChange, FiducialAccumulator,
                                                Measurement, RejectedMeasurement)
@@ -207,3 +209,33 @@ def test_fiducial_set_is_ready_for_build_model():
                           ids=list(fs.ids), working_repeats=list(fs.working_repeats))
     assert tuple(m.ids) == fs.ids
     assert m.sigma_source == "repeats"
+
+
+_point = st.tuples(*[st.floats(-1.0, 1.0, allow_nan=False)] * 3)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from([None, "", "a", "b", "auto-0001"]), _point, _point,
+                          st.booleans()), max_size=40))
+def test_restore_is_identical_for_any_stream(stream):
+    """Whatever was accepted or rejected, replaying the accepted records rebuilds the state."""
+    acc = FiducialAccumulator(3, "tracker", "world", merge_radius=0.3, outlier_distance=0.5)
+    records = []
+    for fid, w, d, toggle in stream:
+        try:
+            rec = acc.prepare(fid, w, d)
+        except RejectedMeasurement as exc:
+            assert exc.reason == "outlier"
+            continue
+        acc.commit(rec)
+        records.append(rec)
+        if toggle:
+            change = acc.prepare_enabled(rec.fiducial_id, not acc.is_enabled(rec.fiducial_id))
+            acc.commit(change)
+            records.append(change)
+    other = FiducialAccumulator(3, "tracker", "world", merge_radius=0.01, outlier_distance=0.0)
+    assert other.restore(records) == []
+    assert other.state_digest() == acc.state_digest()
+    assert other.n_measurements == acc.n_measurements
+    a, b = acc.fiducial_set(), other.fiducial_set()
+    assert a.ids == b.ids and a.disabled_ids == b.disabled_ids

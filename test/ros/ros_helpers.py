@@ -174,6 +174,7 @@ def answer_key(response: Any) -> tuple:
     def num(v: float) -> Optional[float]:
         return None if v != v else v
     return (getattr(response, "success", True), tuple(point_xyz(response.destination.point)),
-            tuple(point_xyz(response.corrected.point)), tuple(point_xyz(response.uncorrected.point)),
+            tuple(point_xyz(response.corrected.point)),
+            tuple(point_xyz(response.uncorrected.point)),
             tuple(point_xyz(response.correction)), response.correction_applied,
             response.inside_hull, num(response.expected_error))

@@ -373,3 +373,39 @@ class TestTwoDimensions(NodeTestBase):
         m = transform_to_matrix(msg)
         np.testing.assert_allclose(m[:2, :2], state.model.corrected.rotation, atol=1e-12)
         np.testing.assert_allclose(m[2, :], [0, 0, 1, 0], atol=1e-12)
+
+
+class TestStartAndTf(NodeTestBase):
+
+    def test_bad_starting_parameters_and_a_foreign_journal_are_refused(self, tmp_path):
+        with pytest.raises(ValueError, match="rho_reject"):
+            RegistrationNode("reg_bad", context=self.ros.context,
+                             parameter_overrides=[Parameter("rho_reject", value=5.0)])
+        node = self.make_node(state_dir=str(tmp_path))
+        self.stream(node, range(3))
+        self.ros.remove(node)
+        self.nodes.remove(node)
+        with pytest.raises(ValueError, match="dimension=3.*dimension=2"):
+            RegistrationNode("reg_bad2", context=self.ros.context, parameter_overrides=[
+                Parameter("state_dir", value=str(tmp_path)), Parameter("dimension", value=2)])
+
+    def test_static_tf_is_broadcast_where_tf2_ros_is_installed(self, monkeypatch):
+        import rbc_registration.ros.node as node_module
+
+        sent = []
+
+        class FakeBroadcaster:
+            def __init__(self, node):
+                self.node = node
+
+            def sendTransform(self, transform):  # noqa: N802 - tf2_ros API
+                sent.append(transform)
+
+        monkeypatch.setattr(node_module, "StaticTransformBroadcaster", FakeBroadcaster)
+        node = self.make_node(tf_broadcast="uncorrected")
+        self.stream(node)
+        model = self.recompute(node).model
+        wait_for(lambda: sent, what="a static transform")
+        m = transform_to_matrix(sent[-1])
+        np.testing.assert_allclose(m[:3, 3], model.uncorrected.translation, atol=1e-12)
+        assert sent[-1].child_frame_id == "tracker"

@@ -92,6 +92,13 @@ def test_separate_client_process_streams_pairs_and_corrects_targets(tmp_path):
     assert node.returncode == 0, (tmp_path / "node.log").read_text()
 
 
+def test_a_bad_parameter_stops_the_node_with_a_reason(tmp_path):
+    with open(tmp_path / "node.log", "w") as log:
+        proc = start_node(f"reg_bad_{os.getpid()}", log=log, dimension=4)
+        assert proc.wait(timeout=60) == 1
+    assert "cannot start" in (tmp_path / "node.log").read_text()
+
+
 class TestKillAndRestart:
     """The test process is the client; the node is a subprocess killed with SIGKILL."""
 

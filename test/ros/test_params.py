@@ -1,6 +1,7 @@
 """Parameter table and validation of registration_node (pure: no rclpy)."""
 
 import math
+import os
 import re
 
 import pytest
@@ -74,3 +75,29 @@ def test_corrections_applied_follows_the_rho_rule_unless_forced(mode, recommenda
 
 def test_params_module_does_not_need_rclpy_to_validate():
     assert "declare" in dir(params)  # declare imports rcl_interfaces lazily, only when called
+
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def test_config_file_lists_every_parameter_with_a_valid_value():
+    yaml = pytest.importorskip("yaml")
+    with open(os.path.join(ROOT, "config", "registration_node.yaml")) as f:
+        values = yaml.safe_load(f)["/**"]["ros__parameters"]
+    values.pop("use_sim_time")
+    assert set(values) == set(SPECS)
+    settings = Settings.from_mapping(values)
+    for name, value in values.items():
+        assert type(value) is type(SPECS[name].default), name   # ROS types must match
+    assert settings.state_dir
+
+
+def test_api_reference_documents_every_parameter_topic_and_service():
+    with open(os.path.join(ROOT, "msg_docs", "README.md")) as f:
+        doc = f.read()
+    with open(os.path.join(ROOT, "rbc_registration", "ros", "node.py")) as f:
+        node_source = f.read()
+    names = set(re.findall(r'"(~/[a-z_]+|/diagnostics)"', node_source))
+    assert len(names) >= 13
+    for name in sorted(names) + [f"`{p}`" for p in SPECS]:
+        assert name in doc, f"{name} is not documented in msg_docs/README.md"
