@@ -111,7 +111,7 @@ def test_rejections_are_counted_like_the_node(tmp_path):
     write_bag(bag, msgs, progress=False)
     report = run_json(["evaluate", str(bag), "--quiet"], tmp_path / "e.json")
     assert report["bag"]["rejected"] == {"frame": 1, "nonfinite": 1, "outlier": 0,
-                                         "malformed": 0}
+                                         "malformed": 0, "stale": 0}
     assert report["n_fiducials"] == len(cell.fiducial_ids) - 2
 
 

@@ -15,104 +15,22 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
-from typing import Iterable, Optional, Union
+from typing import Iterable, Optional
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-#: Reasons a measurement is rejected (the counters of :attr:`FiducialAccumulator.rejected`).
-REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed")
+from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSet, Measurement,
+                      Record, RejectedMeasurement, quote)
+from .validation import MAX_ABS_COORDINATE
+
+__all__ = ["AUTO_ID_PREFIX", "MAX_ID_LENGTH", "REJECT_REASONS", "EnabledChange",
+           "FiducialAccumulator", "FiducialSet", "Measurement", "Record", "RejectedMeasurement"]
 
 #: Ids given to measurements without one are ``auto-0000``, ``auto-0001``, ...
 AUTO_ID_PREFIX = "auto-"
 _AUTO_ID = re.compile(r"^auto-(\d+)$")
 MAX_ID_LENGTH = 256
-
-
-class RejectedMeasurement(ValueError):
-    """A measurement that must not reach the model.
-
-    :ivar reason: one of :data:`REJECT_REASONS`.
-    :ivar message: what was wrong, for the log.
-    """
-
-    def __init__(self, reason: str, message: str) -> None:
-        if reason not in REJECT_REASONS:
-            raise ValueError(f"reason must be one of {REJECT_REASONS}, got {reason!r}")
-        super().__init__(f"{reason}: {message}")
-        self.reason = reason
-        self.message = message
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """One accepted measurement of fiducial ``fiducial_id`` (coordinates in the caller's unit).
-
-    ``working`` and ``destination`` hold the first ``dimension`` coordinates (x, y[, z]);
-    ``auto_id`` is true when the id was assigned by proximity (:attr:`merge_radius`).
-    """
-
-    fiducial_id: str
-    working: tuple[float, ...]
-    destination: tuple[float, ...]
-    stamp_s: float
-    auto_id: bool = False
-
-
-@dataclass(frozen=True)
-class EnabledChange:
-    """Fiducial ``fiducial_id`` excluded from (``enabled=False``) or included in the model."""
-
-    fiducial_id: str
-    enabled: bool
-
-
-Record = Union[Measurement, EnabledChange]
-
-
-@dataclass(frozen=True)
-class FiducialSet:
-    """The enabled fiducials, ready for ``build_model`` (first-seen order, arrays (J, d)).
-
-    ``working`` / ``destination`` are the means of the repeats; ``working_repeats[j]`` is the
-    (n_j, d) array of all measurements of fiducial ``ids[j]`` in the working frame.
-    """
-
-    ids: tuple[str, ...]
-    working: NDArray[np.float64]
-    destination: NDArray[np.float64]
-    working_repeats: tuple[NDArray[np.float64], ...]
-    destination_repeats: tuple[NDArray[np.float64], ...]
-    disabled_ids: tuple[str, ...]
-    n_measurements: int
-
-
-class _Fiducial:
-    """Repeats of one fiducial with running sums (for O(1) means)."""
-
-    __slots__ = ("working", "destination", "sum_w", "sum_d", "enabled")
-
-    def __init__(self, dimension: int) -> None:
-        self.working: list[tuple[float, ...]] = []
-        self.destination: list[tuple[float, ...]] = []
-        self.sum_w = [0.0] * dimension
-        self.sum_d = [0.0] * dimension
-        self.enabled = True
-
-    def add(self, working: tuple[float, ...], destination: tuple[float, ...]) -> None:
-        self.working.append(working)
-        self.destination.append(destination)
-        self.sum_w = [s + v for s, v in zip(self.sum_w, working, strict=True)]
-        self.sum_d = [s + v for s, v in zip(self.sum_d, destination, strict=True)]
-
-    def mean_w(self) -> tuple[float, ...]:
-        n = len(self.working)
-        return tuple(s / n for s in self.sum_w)
-
-    def mean_d(self) -> tuple[float, ...]:
-        n = len(self.destination)
-        return tuple(s / n for s in self.sum_d)
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> float:
@@ -136,11 +54,15 @@ class FiducialAccumulator:
         destination point is within this distance (else a new ``auto-NNNN`` fiducial).
     :param outlier_distance: a measurement farther than this from its fiducial's mean of earlier
         repeats (in either frame) is rejected as an outlier; 0 disables the check.
+    :param max_stamp_age: a measurement whose stamp is more than this [s] older than ``now_s``
+        given to :meth:`prepare`, or more than this ahead of it, is rejected as stale; 0 (or no
+        ``now_s``) disables the check.
     :raises ValueError: on a bad dimension, frame or distance.
     """
 
     def __init__(self, dimension: int, working_frame: str, destination_frame: str,
-                 merge_radius: float, outlier_distance: float = 0.0) -> None:
+                 merge_radius: float, outlier_distance: float = 0.0,
+                 max_stamp_age: float = 0.0) -> None:
         if dimension not in (2, 3) or isinstance(dimension, bool):
             raise ValueError(f"dimension must be 2 or 3, got {dimension!r}")
         for name, frame in (("working_frame", working_frame),
@@ -152,12 +74,13 @@ class FiducialAccumulator:
         self.destination_frame = destination_frame
         self.merge_radius = _positive("merge_radius", merge_radius)
         self.outlier_distance = _positive("outlier_distance", outlier_distance, allow_zero=True)
+        self.max_stamp_age = _positive("max_stamp_age", max_stamp_age, allow_zero=True)
         self.clear()
 
     # -- state --------------------------------------------------------------------------------
     def clear(self) -> None:
         """Forget every measurement and reset the counters."""
-        self._fiducials: dict[str, _Fiducial] = {}
+        self._fiducials: dict[str, FiducialRepeats] = {}
         self._dest_means = np.empty((0, self.dimension))  # row k: mean of fiducial _order[k]
         self._order: list[str] = []
         self._index: dict[str, int] = {}
@@ -192,17 +115,21 @@ class FiducialAccumulator:
             values = tuple(float(v) for v in xyz)  # type: ignore[union-attr]
         except (TypeError, ValueError):
             raise self.reject("malformed", f"{name} must be a sequence of numbers, "
-                                            f"got {xyz!r}") from None
+                                            f"got {quote(xyz)}") from None
         if len(values) not in (3, self.dimension):
             raise self.reject("malformed", f"{name} must have 3 or {self.dimension} "
                                             f"coordinates, got {len(values)}")
         if not all(map(math.isfinite, values)):
             raise self.reject("nonfinite", f"{name} has NaN or inf: {list(values)}")
+        if max(map(abs, values)) > MAX_ABS_COORDINATE:
+            # Finite, but squaring it overflows: the model could not be built any more.
+            raise self.reject("nonfinite", f"{name} has a coordinate beyond "
+                                           f"±{MAX_ABS_COORDINATE:g}: {list(values)}")
         return values[:self.dimension]
 
     def prepare(self, fiducial_id: Optional[str], working_xyz: ArrayLike,
                 destination_xyz: ArrayLike, working_frame: str = "", destination_frame: str = "",
-                stamp_s: float = 0.0) -> Measurement:
+                stamp_s: float = 0.0, now_s: Optional[float] = None) -> Measurement:
         """Validate one measurement and assign its id, without adding it (see :meth:`commit`).
 
         :param fiducial_id: the fiducial's id; ``None`` or ``""``: assigned by proximity.
@@ -211,29 +138,35 @@ class FiducialAccumulator:
         :param working_frame: frame of ``working_xyz``; ``""`` means :attr:`working_frame`.
         :param destination_frame: frame of ``destination_xyz``; ``""`` means the default.
         :param stamp_s: measurement time [s].
+        :param now_s: the clock now [s], for the :attr:`max_stamp_age` check (``None``: no check).
         :return: the record to :meth:`commit`.
-        :raises RejectedMeasurement: with reason frame, nonfinite, outlier or malformed (the
-            rejection is counted in :attr:`rejected`).
+        :raises RejectedMeasurement: with reason frame, nonfinite, outlier, malformed or stale
+            (the rejection is counted in :attr:`rejected`).
         """
         if fiducial_id is not None and not isinstance(fiducial_id, str):
-            raise self.reject("malformed", f"fiducial_id must be a string, got {fiducial_id!r}")
+            raise self.reject("malformed", f"fiducial_id must be a string, "
+                                            f"got {quote(fiducial_id)}")
         if fiducial_id is not None and (len(fiducial_id) > MAX_ID_LENGTH
                                         or any(c in fiducial_id for c in "\n\r\0")):
             raise self.reject("malformed", f"fiducial_id must be at most {MAX_ID_LENGTH} "
-                                            f"characters without line breaks, got {fiducial_id!r}")
+                                            f"characters without line breaks, "
+                                            f"got {quote(fiducial_id)}")
         for name, got, want in (("working frame", working_frame, self.working_frame),
                                 ("destination frame", destination_frame,
                                  self.destination_frame)):
             if not isinstance(got, str):
-                raise self.reject("malformed", f"{name} must be a string, got {got!r}")
+                raise self.reject("malformed", f"{name} must be a string, got {quote(got)}")
             if got and got != want:
-                raise self.reject("frame", f"{name} must be {want!r}, got {got!r}")
+                raise self.reject("frame", f"{name} must be {want!r}, got {quote(got)}")
         try:
             stamp = float(stamp_s)
         except (TypeError, ValueError):
-            raise self.reject("malformed", f"stamp must be a number, got {stamp_s!r}") from None
+            raise self.reject("malformed", f"stamp must be a number, "
+                                            f"got {quote(stamp_s)}") from None
         if not math.isfinite(stamp):
             raise self.reject("malformed", f"stamp must be finite, got {stamp_s!r}")
+        if self.max_stamp_age > 0 and now_s is not None:
+            self._check_age(stamp, float(now_s))
         w = self._coords("working point", working_xyz)
         d = self._coords("destination point", destination_xyz)
         auto = not fiducial_id
@@ -251,6 +184,15 @@ class FiducialAccumulator:
                                    f"of its {len(fiducial.working)} earlier repeat(s), more than "
                                    f"outlier_distance {self.outlier_distance:g}")
         return Measurement(fid, w, d, stamp, auto)
+
+    def _check_age(self, stamp: float, now: float) -> None:
+        age = now - stamp
+        if age > self.max_stamp_age:
+            raise self.reject("stale", f"stamp {stamp:.3f} s is {age:.3g} s older than the clock "
+                                       f"({now:.3f} s); max_stamp_age is {self.max_stamp_age:g} s")
+        if -age > self.max_stamp_age:
+            raise self.reject("stale", f"stamp {stamp:.3f} s is {-age:.3g} s ahead of the clock "
+                                       f"({now:.3f} s); max_stamp_age is {self.max_stamp_age:g} s")
 
     def _nearest(self, destination: tuple[float, ...]) -> Optional[str]:
         if not self._order:
@@ -284,7 +226,7 @@ class FiducialAccumulator:
         fid = record.fiducial_id
         fiducial = self._fiducials.get(fid)
         if fiducial is None:
-            fiducial = self._fiducials[fid] = _Fiducial(self.dimension)
+            fiducial = self._fiducials[fid] = FiducialRepeats(self.dimension)
             self._index[fid] = len(self._order)
             self._order.append(fid)
             self._dest_means = np.vstack([self._dest_means, np.zeros((1, self.dimension))])
@@ -297,14 +239,14 @@ class FiducialAccumulator:
 
     def add(self, fiducial_id: Optional[str], working_xyz: ArrayLike, destination_xyz: ArrayLike,
             working_frame: str = "", destination_frame: str = "",
-            stamp_s: float = 0.0) -> str:
+            stamp_s: float = 0.0, now_s: Optional[float] = None) -> str:
         """:meth:`prepare` then :meth:`commit` one measurement.
 
         :return: the id of the fiducial it was added to.
         :raises RejectedMeasurement: see :meth:`prepare`.
         """
         record = self.prepare(fiducial_id, working_xyz, destination_xyz, working_frame,
-                              destination_frame, stamp_s)
+                              destination_frame, stamp_s, now_s)
         self.commit(record)
         return record.fiducial_id
 
@@ -316,7 +258,7 @@ class FiducialAccumulator:
         """
         if fiducial_id not in self._fiducials:
             known = ", ".join(self._order[:20]) + (" ..." if len(self._order) > 20 else "")
-            raise KeyError(f"unknown fiducial id {fiducial_id!r} (known: {known or 'none'})")
+            raise KeyError(f"unknown fiducial id {quote(fiducial_id)} (known: {known or 'none'})")
         return EnabledChange(fiducial_id, bool(enabled))
 
     def set_enabled(self, fiducial_id: str, enabled: bool) -> None:

@@ -14,6 +14,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, PointStamped, TransformStamped, Vector3
 from numpy.typing import NDArray
 
+from rbc_registration.core.records import quote
 from rbc_registration_interfaces.msg import TargetCorrection
 
 
@@ -76,7 +77,7 @@ def targets_to_array(targets: Sequence[PointStamped], working_frame: str,
     for k, target in enumerate(targets):
         frame = target.header.frame_id
         if frame and frame != working_frame:
-            raise ValueError(f"target {k} has frame_id {frame!r}, expected the working frame "
+            raise ValueError(f"target {k} has frame_id {quote(frame)}, expected the working frame "
                              f"{working_frame!r} (or empty)")
     xyz = np.array([point_to_array(t.point) for t in targets], dtype=np.float64).reshape(-1, 3)
     return xyz[:, :dimension], xyz[:, 2].copy()

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
-from rbc_registration.core.accumulator import (FiducialAccumulator, FiducialSet, Record,
-                                               RejectedMeasurement)
+from rbc_registration.core.accumulator import (FiducialAccumulator, FiducialSet, Measurement,
+                                               Record, RejectedMeasurement)
 from rbc_registration.core.pairing import StampPairer
 
 from .conversions import PairArgs
@@ -29,17 +29,22 @@ class Ingest:
     :param pairer: pairs ``~/working_point`` and ``~/destination_point`` by stamp.
     :param journal: appends each accepted record before it counts; ``None``: no persistence.
     :param logger: an rclpy-style logger (``warning``, ``error``, ``info``).
+    :param clock: the time now [s] (the node clock) for the accumulator's ``max_stamp_age``
+        check; ``None``: stamps are not checked against a clock (offline evaluation).
     """
 
     def __init__(self, accumulator: FiducialAccumulator, pairer: StampPairer,
-                 journal: Optional[Journal], logger: Any) -> None:
+                 journal: Optional[Journal], logger: Any,
+                 clock: Optional[Callable[[], float]] = None) -> None:
         self._acc = accumulator
         self._pairer = pairer
         self._journal = journal
         self._log = logger
+        self._clock = clock
         self._lock = threading.Lock()
         self._last_log: dict[str, float] = {}
-        self.journal_error = ""
+        self.journal_error = ""      # the last journal write error; "" once a write succeeds
+        self.n_journal_failures = 0  # records refused because the journal could not be written
 
     def restore(self) -> int:
         """Replay the journal (if any) into the accumulator; return the measurements restored.
@@ -71,15 +76,19 @@ class Ingest:
                 self._journal.append(record)
             except OSError as exc:
                 self.journal_error = str(exc)
-                self._log.error(f"journal write failed, measurement NOT accepted: {exc}")
+                self.n_journal_failures += 1
+                what = "measurement" if isinstance(record, Measurement) else "enable change"
+                self._log.error(f"journal write failed, {what} NOT accepted "
+                                f"({self.n_journal_failures} so far): {exc}")
                 return False
             self.journal_error = ""
         self._acc.commit(record)
         return True
 
     def _measurement_locked(self, args: PairArgs) -> bool:
+        now = self._clock() if self._clock is not None and self._acc.max_stamp_age > 0 else None
         try:
-            record = self._acc.prepare(*args)
+            record = self._acc.prepare(*args, now_s=now)
         except RejectedMeasurement as exc:
             self._rejected(exc)
             return False
@@ -128,6 +137,7 @@ class Ingest:
         with self._lock:
             self._acc.clear()
             self._pairer.clear()
+            self.n_journal_failures = 0
             if self._journal is None:
                 return True, "all measurements forgotten"
             try:
@@ -138,11 +148,13 @@ class Ingest:
             return True, f"all measurements forgotten; journal archived as {archived}"
 
     def configure(self, settings: Settings) -> None:
-        """Apply changed dynamic parameters (pairing slop, merge radius, outlier distance)."""
+        """Apply changed dynamic parameters (pairing slop, merge radius, outlier distance,
+        stamp age)."""
         with self._lock:
             self._pairer.slop = settings.pair_slop
             self._acc.merge_radius = settings.merge_radius
             self._acc.outlier_distance = settings.outlier_distance
+            self._acc.max_stamp_age = settings.max_stamp_age
 
     def fiducial_set(self) -> FiducialSet:
         """The enabled fiducials now (for a model rebuild)."""
@@ -153,7 +165,7 @@ class Ingest:
         """Measurement and rejection counters now."""
         with self._lock:
             return Counters(self._acc.n_measurements, dict(self._acc.rejected),
-                            self._acc.n_disabled)
+                            self._acc.n_disabled, self.n_journal_failures, self.journal_error)
 
     def close(self) -> None:
         """Close the journal."""

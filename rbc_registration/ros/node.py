@@ -17,7 +17,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, TransformStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import ParameterException, ParameterNotDeclaredException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
@@ -35,6 +35,7 @@ from . import conversions as conv
 from . import params, persistence, reports
 from .guards import guard_input, guard_service
 from .ingest import Ingest
+from .services import ServicesMixin
 from .worker import EMPTY_STATE, ModelState, RecomputeWorker, build_state
 
 try:  # tf2_ros is optional (not on PyPI): without it no static tf is broadcast.
@@ -51,10 +52,9 @@ INPUT = {"reliable": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
                                 reliability=ReliabilityPolicy.RELIABLE),
          "best_effort": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
                                    reliability=ReliabilityPolicy.BEST_EFFORT)}
-RECOMPUTE_TIMEOUT_S = 60.0
 
 
-class RegistrationNode(Node):
+class RegistrationNode(ServicesMixin, Node):
     """The registration node (see the module docstring and msg_docs/README.md).
 
     :raises ValueError: when a parameter's starting value is invalid or the journal in
@@ -70,15 +70,17 @@ class RegistrationNode(Node):
         self._generation = 0  # bumped by ~/reset: a rebuild of an older generation is dropped
         self.rebuilds = 0     # models built so far (for tests and diagnostics)
         accumulator = FiducialAccumulator(s.dimension, s.working_frame, s.destination_frame,
-                                          s.merge_radius, s.outlier_distance)
+                                          s.merge_radius, s.outlier_distance, s.max_stamp_age)
         journal = None
         if s.state_dir:
+            for warning in persistence.tidy_state_dir(s.state_dir):
+                self.get_logger().warning(warning)
             journal = persistence.Journal(s.state_dir, {"working_frame": s.working_frame,
                                                         "destination_frame": s.destination_frame,
                                                         "dimension": s.dimension},
                                           fsync=s.journal_fsync)
         self._ingest = Ingest(accumulator, StampPairer(s.pair_slop, s.point_buffer), journal,
-                              self.get_logger())
+                              self.get_logger(), lambda: self.get_clock().now().nanoseconds * 1e-9)
         restored = self._ingest.restore()
 
         self._tf = StaticTransformBroadcaster(self) if StaticTransformBroadcaster else None
@@ -174,7 +176,10 @@ class RegistrationNode(Node):
             self._pub_markers.publish(reports.markers_msg(state, s, now))
         self._publish_status()
         if s.state_dir:
-            self._save(state)
+            try:
+                self._save(state)
+            except OSError as exc:  # e.g. disk full: the journal still holds every measurement
+                self.get_logger().error(f"calibration snapshot not written: {exc}")
 
     def status(self) -> RegistrationStatus:
         """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
@@ -193,82 +198,23 @@ class RegistrationNode(Node):
         persistence.write_atomic(path, reports.snapshot_json(state, self.status()))
         return path
 
-    # -- services -----------------------------------------------------------------------------
-    def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
-        """Answer from one snapshot of the model: (results, "", note) or ([], reason, "")."""
-        state, s = self._state, self._settings
-        model = state.model
-        if model is None:
-            return [], f"no model yet: {state.error}", ""
-        try:
-            points, z = conv.targets_to_array(targets, s.working_frame, s.dimension)
-            tc = model.correct(points)
-        except ValueError as exc:
-            return [], str(exc), ""
-        applied = params.corrections_applied(s.apply_corrections, model.recommendation)
-        rho = model.rho if model.rho is not None else float("nan")
-        note = (f"corrections {'applied' if applied else 'not applied'} (mode "
-                f"{s.apply_corrections}, recommendation {model.recommendation}, rho {rho:.3g})")
-        return conv.target_corrections_to_msgs(tc, z, applied, s.destination_frame,
-                                               [t.header.stamp for t in targets]), "", note
-
-    def _on_correct_target(self, request: CorrectTarget.Request,
-                           response: CorrectTarget.Response) -> CorrectTarget.Response:
-        results, error, note = self._correct([request.target])
-        if error:
-            response.success, response.message = False, error
-            return response
-        conv.fill_correct_target_response(response, results[0])
-        response.message = note
-        return response
-
-    def _on_correct_targets(self, request: CorrectTargets.Request,
-                            response: CorrectTargets.Response) -> CorrectTargets.Response:
-        if not request.targets:
-            response.success, response.message = True, "no targets"
-            return response
-        results, error, note = self._correct(list(request.targets))
-        response.success, response.results, response.message = not error, results, error or note
-        return response
-
-    def _on_set_fiducial_enabled(self, request: SetFiducialEnabled.Request,
-                                 response: SetFiducialEnabled.Response) -> Any:
-        response.success, response.message = self._ingest.set_enabled(request.fiducial_id,
-                                                                       request.enabled)
-        if response.success:
-            self._worker.notify()
-        return response
-
-    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        with self._pub_lock:
-            self._generation += 1
-            self._state = EMPTY_STATE
-        response.success, response.message = self._ingest.reset()
-        self._publish_status()
-        with self._pub_lock:
-            self._pub_markers.publish(reports.markers_msg(EMPTY_STATE, self._settings,
-                                                          self.get_clock().now().to_msg()))
-        return response
-
-    def _on_recompute(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        finished = self._worker.wait(self._worker.request_now(), RECOMPUTE_TIMEOUT_S)
-        state = self._state
-        response.success = finished and state.model is not None
-        response.message = (state.error or f"model rebuilt from {len(state.fiducials.ids)} "
-                            f"fiducials") if finished else "recompute timed out"
-        return response
-
-    def _on_save(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        if not self._settings.state_dir:
-            response.success, response.message = False, "state_dir is not set: nothing to save to"
-            return response
-        try:
-            response.success, response.message = True, f"saved {self._save(self._state)}"
-        except OSError as exc:
-            response.success, response.message = False, f"save failed: {exc}"
-        return response
-
     # -- parameters ---------------------------------------------------------------------------
+    def _apply_descriptor(self, parameter: Parameter, *args: Any, **kwargs: Any) -> Any:
+        """rclpy's type check, with a reason naming the parameter and the types (rclpy 3.11+
+        prints the type codes only: "expected '3' got '2'")."""
+        result = super()._apply_descriptor(parameter, *args, **kwargs)
+        if not result.successful and result.reason.startswith("Wrong parameter type"):
+            result.reason = params.type_error(parameter.name, parameter.type_.name,
+                                              parameter.value)
+        return result
+
+    def _check_undeclared_parameters(self, parameter_list: list[Parameter]) -> None:
+        """rclpy's check, naming the unknown parameters (rclpy lists none: "[]")."""
+        unknown = [p.name for p in parameter_list if not self.has_parameter(p.name)]
+        if unknown and not getattr(self, "_allow_undeclared_parameters", False):
+            raise ParameterNotDeclaredException(unknown)
+        super()._check_undeclared_parameters(parameter_list)
+
     def _on_set_parameters(self, parameters: list[Parameter]) -> Any:
         changes = {p.name: p.value for p in parameters if p.name in params.SPECS}
         try:

@@ -66,6 +66,12 @@ SPECS: dict[str, Spec] = {
     "outlier_distance": Spec(0.01, "A measurement farther than this [m] from the mean of its "
                              "fiducial's earlier repeats (either frame) is rejected; 0 = off.",
                              low=0.0, high=100.0),
+    "max_stamp_age": Spec(0.0, "A measurement whose header stamp is more than this [s] older "
+                          "than the node clock, or more than this ahead of it, is rejected as "
+                          "stale; 0 = off (so a bag replayed with its old stamps is accepted).",
+                          low=0.0, high=1e9),
+    "max_targets": Spec(10_000, "Most targets in one ~/correct_targets request; a larger "
+                        "request is refused with success=false.", low=1, high=10_000_000),
     "debounce_period": Spec(0.2, "Recompute once no measurement arrived for this long [s] "
                             "(at the latest 10x this after the first pending one).",
                             low=0.0, high=60.0),
@@ -111,6 +117,8 @@ class Settings:
     pair_slop: float
     merge_radius: float
     outlier_distance: float
+    max_stamp_age: float
+    max_targets: int
     debounce_period: float
     point_buffer: int
     input_reliability: str
@@ -187,6 +195,23 @@ def validate(values: Mapping[str, Any]) -> Optional[str]:
         return (f"rho_reject ({values['rho_reject']:g}) must be <= rho_apply "
                 f"({values['rho_apply']:g})")
     return None
+
+
+#: ROS parameter type names of the Python types of :data:`SPECS` defaults.
+ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string"}
+
+
+def type_error(name: str, got_type: str, value: Any) -> str:
+    """The reason for a value of the wrong ROS type, e.g. ``sigma:=1`` (an integer) for a double.
+
+    Starts with "Wrong parameter type" as rclpy's own reason does (rclpy tests that prefix).
+    """
+    spec = SPECS.get(name)
+    want = ROS_TYPE_NAMES.get(type(spec.default), "?") if spec is not None else "?"
+    hint = f" (write {float(value)!r})" if want == "double" and isinstance(value, int) \
+        and not isinstance(value, bool) else ""
+    return (f"Wrong parameter type: {name} must be of type {want}, got {got_type.lower()} "
+            f"{value!r}{hint}")
 
 
 def corrections_applied(mode: str, recommendation: str) -> bool:

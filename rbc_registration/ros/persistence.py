@@ -8,12 +8,16 @@ costs a disk sync per record). On open a torn last line (a write cut short) is s
 warning and cut off so that appends stay line-aligned; an unreadable line elsewhere is skipped
 with a warning. Floats are written with ``repr`` precision, so replay is bit-exact.
 
-``calibration.json``: the latest model, written atomically (temporary file, fsync, rename,
-fsync of the directory): a reader sees the old or the new file, never a mix.
+A record that cannot be written (disk full, file-size limit, I/O error) raises ``OSError`` and
+leaves nothing behind: a partly written line is cut off again at once, so the record can never
+reappear later (the caller does not count it).
+
+``calibration.json``: the latest model, see :mod:`rbc_registration.ros.snapshot`.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import time
@@ -21,8 +25,10 @@ from typing import Any, Iterable, Optional
 
 from rbc_registration.core.accumulator import EnabledChange, Measurement, Record
 
+from .snapshot import (SNAPSHOT_NAME, fsync_dir, read_snapshot, snapshot_path,  # noqa: F401
+                       tidy_state_dir, write_atomic)
+
 JOURNAL_NAME = "journal.jsonl"
-SNAPSHOT_NAME = "calibration.json"
 JOURNAL_VERSION = 1
 
 
@@ -82,7 +88,10 @@ class Journal:
         self.path = os.path.join(self.state_dir, JOURNAL_NAME)
         self.header = {"t": "h", "version": JOURNAL_VERSION, **header}
         self.fsync = fsync
-        self._file = None
+        self._fd: Optional[int] = None
+        self._size = 0                # bytes of whole records in the file
+        self._needs_header = False    # the header is written with the first record that fits
+        self._dirty = False           # a failed write could not be cut off yet
         os.makedirs(self.state_dir, exist_ok=True)
 
     def load(self) -> tuple[list[Record], list[str]]:
@@ -121,7 +130,9 @@ class Journal:
                     raise
                 except (ValueError, KeyError, TypeError) as exc:
                     warnings.append(f"{self.path}:{lineno}: unreadable record skipped ({exc})")
-        self._open(truncate_to=good_end)
+        error = self._open(truncate_to=good_end)
+        if error:
+            warnings.append(error)
         return records, warnings
 
     def _check_header(self, found: dict[str, Any]) -> None:
@@ -132,37 +143,61 @@ class Journal:
                     f"with {key}={want!r}: move the journal away or start with the same "
                     f"parameters")
 
-    def _open(self, truncate_to: int) -> None:
-        exists = os.path.exists(self.path)
-        self._file = open(self.path, "ab")
-        if exists and self._file.tell() != truncate_to:
-            self._file.truncate(truncate_to)
-            self._file.seek(truncate_to)
-        if truncate_to == 0:
-            self._write(json.dumps(self.header, separators=(",", ":")))
+    def _open(self, truncate_to: int) -> str:
+        """Open for appending after ``truncate_to`` bytes; returns a warning when a new
+        journal's header cannot be written yet (it is retried with the first record)."""
+        self.close()
+        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        if os.fstat(fd).st_size != truncate_to:
+            os.ftruncate(fd, truncate_to)
+        self._fd, self._size, self._dirty = fd, truncate_to, False
+        self._needs_header = truncate_to == 0
+        if self._needs_header:
+            try:
+                self._write(b"")
+            except OSError as exc:
+                return f"{self.path}: header not written yet ({exc}); retried with the first record"
+        return ""
 
-    def _write(self, line: str) -> None:
-        assert self._file is not None, "journal is not open: call load() first"
-        self._file.write(line.encode("utf-8") + b"\n")
-        self._file.flush()
-        if self.fsync:
-            os.fsync(self._file.fileno())
+    def _write(self, data: bytes) -> None:
+        """Append ``data`` (whole lines) in full, or raise ``OSError`` leaving the file as is."""
+        assert self._fd is not None, "journal is not open: call load() first"
+        if self._dirty:                      # cut off what a failed write left, before appending
+            os.ftruncate(self._fd, self._size)
+            self._dirty = False
+        if self._needs_header:
+            data = json.dumps(self.header, separators=(",", ":")).encode("utf-8") + b"\n" + data
+        try:
+            view = memoryview(data)
+            while view:
+                written = os.write(self._fd, view)
+                if written <= 0:
+                    raise OSError(errno.ENOSPC, "no space left for the journal")
+                view = view[written:]
+            if self.fsync:
+                os.fsync(self._fd)
+        except OSError:
+            # A short write (disk full, file-size limit) leaves part of a line: cut it off now,
+            # so that the record can never reappear once space is free again.
+            try:
+                os.ftruncate(self._fd, self._size)
+            except OSError:
+                self._dirty = True
+            raise
+        self._size += len(data)
+        self._needs_header = False
 
     def append(self, record: Record) -> None:
-        """Write one record and flush it to the OS (and fsync it when configured).
+        """Write one record with one ``write`` to the OS (and fsync it when configured).
 
-        :raises OSError: when it cannot be written (the caller must not count the record).
+        :raises OSError: when it cannot be written in full; nothing of it stays in the journal
+            and the caller must not count the record.
         """
-        self._write(record_to_json(record))
+        self._write(record_to_json(record).encode("utf-8") + b"\n")
 
     def append_many(self, records: Iterable[Record]) -> None:
-        """Append several records (one flush)."""
-        lines = "".join(record_to_json(r) + "\n" for r in records)
-        assert self._file is not None, "journal is not open: call load() first"
-        self._file.write(lines.encode("utf-8"))
-        self._file.flush()
-        if self.fsync:
-            os.fsync(self._file.fileno())
+        """Append several records (one write): all of them or, on ``OSError``, none."""
+        self._write("".join(record_to_json(r) + "\n" for r in records).encode("utf-8"))
 
     def archive(self) -> Optional[str]:
         """Move the journal (and snapshot) aside as ``*.<UTC time>.bak`` and start a new one.
@@ -178,38 +213,15 @@ class Journal:
                 os.replace(path, f"{path}.{suffix}.bak")
                 if name == JOURNAL_NAME:
                     archived = f"{path}.{suffix}.bak"
-        _fsync_dir(self.state_dir)
+        fsync_dir(self.state_dir)
         self._open(truncate_to=0)
         return archived
 
     def close(self) -> None:
-        """Flush and close the file (appends need :meth:`load` again)."""
-        if self._file is not None:
-            self._file.close()
-            self._file = None
+        """Close the file (appends need :meth:`load` again)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
-
-def _fsync_dir(path: str) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def write_atomic(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` atomically: temporary file, fsync, rename, fsync directory."""
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    tmp = f"{path}.tmp.{os.getpid()}"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(directory)
-
-
-def snapshot_path(state_dir: str) -> str:
-    """Path of the calibration snapshot in ``state_dir``."""
-    return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), SNAPSHOT_NAME)
+    def __del__(self) -> None:  # a journal dropped without close() must not leak its descriptor
+        self.close()

@@ -19,6 +19,7 @@ from rbc_registration_interfaces.msg import RegistrationStatus
 
 from .conversions import array_to_point, embed_3d, nanoseconds_to_stamp
 from .params import Settings, corrections_applied
+from .snapshot import SNAPSHOT_FORMAT
 from .worker import ModelState
 
 #: RegistrationStatus.sigma_source for the core's sigma_source values.
@@ -31,6 +32,8 @@ class Counters(NamedTuple):
     n_measurements: int
     rejected: Mapping[str, int]
     n_disabled: int
+    n_journal_failures: int = 0
+    journal_error: str = ""
 
 
 def _nan(value: Any) -> float:
@@ -59,7 +62,12 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
     msg.restoration = (state.settings or settings).restoration
     msg.interpolation = (state.settings or settings).interpolation
     msg.last_recompute = nanoseconds_to_stamp(state.stamp_ns)
+    msg.n_journal_failures = counters.n_journal_failures
     msg.message = state.error
+    if counters.journal_error:
+        msg.message = "; ".join(filter(None, (
+            f"journal write failed, {counters.n_journal_failures} record(s) not accepted: "
+            f"{counters.journal_error}", state.error)))
     msg.model_valid = model is not None
     if model is None:
         msg.sigma = msg.rho = msg.fre_rms_uncorrected = msg.fre_rms_corrected = float("nan")
@@ -103,6 +111,8 @@ def diagnostics_msg(status: RegistrationStatus, node_name: str, now: Time,
         "n_rejected_nonfinite": status.n_rejected_nonfinite,
         "n_rejected_outlier": status.n_rejected_outlier,
         "n_rejected_malformed": status.n_rejected_malformed,
+        "n_rejected_stale": status.n_rejected_stale,
+        "n_journal_failures": status.n_journal_failures,
         "sigma [m]": status.sigma, "sigma_source": status.sigma_source, "rho": status.rho,
         "recommendation": status.recommendation, "correction_mode": status.correction_mode,
         "corrections_applied": status.corrections_applied,
@@ -170,7 +180,7 @@ def snapshot_json(state: ModelState, status: RegistrationStatus) -> str:
     = R @ working + t, metres), the fiducials and their corrections, sigma, rho and settings."""
     model, fiducials, settings = state.model, state.fiducials, state.settings
     data: dict[str, Any] = {
-        "format": "rbc_registration calibration 1",
+        "format": SNAPSHOT_FORMAT,
         "working_frame": status.working_frame_id,
         "destination_frame": status.destination_frame_id,
         "dimension": int(status.dimension), "units": "m",

@@ -64,19 +64,24 @@ def test_dimension_2_uses_x_y_only():
 
 
 @pytest.mark.parametrize("kwargs, reason", [
-    (dict(working_frame="camera"), "frame"),
-    (dict(destination_frame="map"), "frame"),
-    (dict(working_xyz=[0, math.nan, 0]), "nonfinite"),
-    (dict(destination_xyz=[0, 0, math.inf]), "nonfinite"),
-    (dict(working_xyz=[0, 0]), "malformed"),          # 2 coordinates in 3D
-    (dict(working_xyz="abc"), "malformed"),
-    (dict(fiducial_id=7), "malformed"),
-    (dict(fiducial_id="a\nb"), "malformed"),
-    (dict(stamp_s=math.nan), "malformed"),
+    pytest.param(dict(working_frame="camera"), "frame", id="working-frame"),
+    pytest.param(dict(destination_frame="map"), "frame", id="destination-frame"),
+    pytest.param(dict(working_xyz=[0, math.nan, 0]), "nonfinite", id="nan"),
+    pytest.param(dict(destination_xyz=[0, 0, math.inf]), "nonfinite", id="inf"),
+    pytest.param(dict(working_xyz=[0, 0, 1e300]), "nonfinite", id="1e300"),
+    pytest.param(dict(working_xyz=[0, 0]), "malformed", id="2-coordinates-in-3d"),
+    pytest.param(dict(working_xyz="abc"), "malformed", id="text"),
+    pytest.param(dict(fiducial_id=7), "malformed", id="id-not-a-string"),
+    pytest.param(dict(fiducial_id="a\nb"), "malformed", id="id-with-line-break"),
+    pytest.param(dict(fiducial_id="x" * 2**20), "malformed", id="1MB-id"),
+    pytest.param(dict(stamp_s=math.nan), "malformed", id="nan-stamp"),
+    pytest.param(dict(stamp_s=1.0, now_s=100.0), "stale", id="old-stamp"),
+    pytest.param(dict(stamp_s=1000.0, now_s=100.0), "stale", id="future-stamp"),
 ])
 def test_each_rejection_reason_is_counted_and_nothing_is_added(kwargs, reason):
     acc = make()
     acc.add("a", [0, 0, 0], [1, 1, 1])
+    acc.max_stamp_age = 10.0
     args = dict(fiducial_id="a", working_xyz=[0, 0, 0], destination_xyz=[1, 1, 1],
                 working_frame="tracker", destination_frame="world", stamp_s=1.0)
     args.update(kwargs)
@@ -85,8 +90,34 @@ def test_each_rejection_reason_is_counted_and_nothing_is_added(kwargs, reason):
         acc.add(**args)
     assert info.value.reason == reason
     assert info.value.message in str(info.value)
+    assert len(info.value.message) < 300    # a 1 MB value is quoted cut short
     assert acc.rejected[reason] == 1 and acc.n_rejected == 1
     assert acc.state_digest() == before and acc.n_measurements == 1
+
+
+def test_stamp_age_messages_and_limits():
+    acc = FiducialAccumulator(3, "tracker", "world", 0.005, 0.0, max_stamp_age=5.0)
+    with pytest.raises(RejectedMeasurement, match=r"stamp 100.000 s is 50 s older than the clock "
+                                                  r"\(150.000 s\); max_stamp_age is 5 s"):
+        acc.prepare("a", [0, 0, 0], [1, 1, 1], stamp_s=100.0, now_s=150.0)
+    with pytest.raises(RejectedMeasurement, match="is 3.6e\\+03 s ahead of the clock"):
+        acc.prepare("a", [0, 0, 0], [1, 1, 1], stamp_s=3750.0, now_s=150.0)
+    for stamp in (145.0, 150.0, 155.0):   # within the age either way: accepted
+        acc.commit(acc.prepare("a", [0, 0, 0], [1, 1, 1], stamp_s=stamp, now_s=150.0))
+    acc.prepare("a", [0, 0, 0], [1, 1, 1], stamp_s=0.0)   # no clock given: no check
+    acc.max_stamp_age = 0.0                                # 0: off
+    acc.prepare("a", [0, 0, 0], [1, 1, 1], stamp_s=0.0, now_s=1e9)
+    assert acc.rejected["stale"] == 2 and acc.n_measurements == 3
+
+
+def test_long_values_are_quoted_short():
+    acc = make()
+    acc.add("a", [0, 0, 0], [1, 1, 1])
+    with pytest.raises(RejectedMeasurement, match=r"got 'cccc.*\.\.\. \(1048576 characters\)$"):
+        acc.prepare("a", [0, 0, 0], [1, 1, 1], working_frame="c" * 2**20)
+    with pytest.raises(KeyError) as info:
+        acc.prepare_enabled("z" * 2**20, False)
+    assert "(1048576 characters) (known: a)" in str(info.value) and len(str(info.value)) < 200
 
 
 def test_outlier_in_either_frame_is_rejected():
@@ -182,6 +213,7 @@ def test_clear_and_empty_set_shapes():
     (dict(merge_radius=0.0), "merge_radius must be > 0"),
     (dict(outlier_distance=-1.0), "outlier_distance must be >= 0"),
     (dict(merge_radius=math.nan), "merge_radius"),
+    (dict(max_stamp_age=-1.0), "max_stamp_age must be >= 0"),
 ])
 def test_constructor_validation(kwargs, match):
     args = dict(dimension=3, working_frame="tracker", destination_frame="world",

@@ -1,5 +1,7 @@
 """The model as the CLI and node use it: config validation, subsets, sigma sources, corrections."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -43,10 +45,15 @@ def test_subsets_as_in_the_paper(ra):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"dimension": 4}, "dimension"), ({"restoration": "x"}, "restoration"),
-    ({"steps": 0}, "steps"), ({"interpolation": "spline"}, "interpolation"),
-    ({"sigma": 0.0}, "sigma"), ({"sigma": float("nan")}, "sigma"),
-    ({"rho_reject": 3.0}, "exceed"), ({"rho_apply": -1.0}, "rho_apply")])
+    pytest.param({"dimension": 4}, "dimension", id="dimension"),
+    pytest.param({"restoration": "x"}, "restoration", id="restoration"),
+    pytest.param({"steps": 0}, "steps", id="steps"),
+    pytest.param({"interpolation": "spline"}, "interpolation", id="interpolation"),
+    pytest.param({"sigma": 0.0}, "sigma must be a positive finite length or None, got 0.0",
+                 id="zero-sigma"),
+    pytest.param({"sigma": float("nan")}, "sigma", id="nan-sigma"),
+    pytest.param({"rho_reject": 3.0}, "exceed", id="rho-order"),
+    pytest.param({"rho_apply": -1.0}, "rho_apply", id="negative-rho")])
 def test_config_validation(kwargs, message):
     with pytest.raises(ValueError, match=message):
         ModelConfig(**kwargs)
@@ -76,3 +83,15 @@ def test_target_errors_and_loo(ra):
     assert len(loo.tre_u) == len(m.ids)
     # leaving a fiducial out and predicting it: correcting helps on this biased cell
     assert np.median(loo.tre_c) < np.median(loo.tre_u)
+
+
+@pytest.mark.parametrize("interpolation", ["paper", "kriging"])
+def test_zero_sigma_from_identical_repeats(ra, interpolation):
+    """Identical repeats (a simulator, a rounding driver) give sigma = 0: rho is infinite and
+    the recommendation is 'apply'; the model is built and answers all the same."""
+    x, y = ra.fiducial_means, ra.fiducial_truth
+    model = build_model(x, y, ModelConfig(dimension=2, interpolation=interpolation),
+                        working_repeats=[np.repeat(p[None], 2, axis=0) for p in x])
+    assert model.sigma == 0.0 and model.sigma_source == "repeats"
+    assert model.rho == math.inf and model.recommendation == "apply"
+    assert np.isfinite(model.correct(ra.target_means).corrected).all()

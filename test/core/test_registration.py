@@ -56,14 +56,17 @@ def test_weights_ignore_zero_weighted_outlier():
 
 
 @pytest.mark.parametrize("x, y, message", [
-    (np.zeros((2, 3)), np.zeros((2, 3)), "at least 3"),
-    (np.zeros((4, 3)), np.zeros((4, 2)), "shape"),
-    (np.ones((4, 3)), np.ones((4, 3)), "coincident"),
-    (np.outer(np.arange(5.0), [1, 2, 3]), np.outer(np.arange(5.0), [1, 2, 3]), "collinear"),
-    (np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]]), np.eye(3), "NaN"),
-    (np.array([[0, 0, np.inf], [1, 0, 0], [0, 1, 0]]), np.eye(3), "NaN or inf"),
-    (np.zeros((4, 4)), np.zeros((4, 4)), "shape"),
-    (np.array([[0, 0, 1e300], [1, 0, 0], [0, 1, 0]]), np.eye(3), "beyond"),
+    pytest.param(np.zeros((2, 3)), np.zeros((2, 3)), "at least 3", id="too-few"),
+    pytest.param(np.zeros((4, 3)), np.zeros((4, 2)), "shape", id="2d-vs-3d"),
+    pytest.param(np.ones((4, 3)), np.ones((4, 3)), "coincident", id="coincident"),
+    pytest.param(np.outer(np.arange(5.0), [1, 2, 3]), np.outer(np.arange(5.0), [1, 2, 3]),
+                 "collinear", id="collinear"),
+    pytest.param(np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]]), np.eye(3), "NaN", id="nan"),
+    pytest.param(np.array([[0, 0, np.inf], [1, 0, 0], [0, 1, 0]]), np.eye(3), "NaN or inf",
+                 id="inf"),
+    pytest.param(np.zeros((4, 4)), np.zeros((4, 4)), "shape", id="4-columns"),
+    pytest.param(np.array([[0, 0, 1e300], [1, 0, 0], [0, 1, 0]]), np.eye(3), "beyond",
+                 id="1e300"),
 ])
 def test_validation(x, y, message):
     with pytest.raises(ValueError, match=message):

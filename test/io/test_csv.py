@@ -50,18 +50,23 @@ def test_round_trip(tmp_path):
     assert tt.ids == ("T0", "T1") and tt.destination.shape == (2, 3)
 
 
+H3 = "id,wx,wy,wz,dx,dy,dz\n"
+
+
 @pytest.mark.parametrize("text, message", [
-    ("", "empty file"),
-    ("id,wx,wy,wz,dx,dy,dz\n", "no data rows"),
-    ("id,wx,wy,dz\na,1,2,3\n", "missing column.*dx, dy"),
-    ("id,wx,wy,wz,dx,dy,dz\na,1,2,x,1,2,3\n", "row 2: column wz is not a number: 'x'"),
-    ("id,wx,wy,wz,dx,dy,dz\na,1,2,,1,2,3\n", "row 2: column wz is empty"),
-    ("id,wx,wy,wz,dx,dy,dz\na,1,2,nan,1,2,3\n", "not finite"),
-    ("id,wx,wy,wz,dx,dy,dz\na,1,2,1e300,1,2,3\n", "out of range"),
-    ("id,wx,wy,wz,dx,dy\na,1,2,3,1,2\n", "mixed 2D/3D.*dz"),
-    ("id,wx,wy,wz,dx,dy,dz\n,1,2,3,1,2,3\n", "column id is empty"),
-    ("id,wx,wy,wz,dx,dy,dz\na,0,0,0,0,0,0\na,0,0,0,5,0,0\nb,1,1,1,1,1,1\n",
-     "id 'a' .* conflicting destination"),
+    pytest.param("", "empty file", id="empty-file"),
+    pytest.param(H3, "no data rows", id="no-data-rows"),
+    pytest.param("id,wx,wy,dz\na,1,2,3\n", "missing column.*dx, dy", id="missing-columns"),
+    pytest.param(H3 + "a,1,2,x,1,2,3\n", "row 2: column wz is not a number: 'x'",
+                 id="text-in-number"),
+    pytest.param(H3 + "a,1,2,,1,2,3\n", "row 2: column wz is empty", id="empty-cell"),
+    pytest.param(H3 + "a,1,2,nan,1,2,3\n", "not finite", id="nan"),
+    pytest.param(H3 + "a,1,2,1e300,1,2,3\n", "row 2: column wz is out of range: '1e300'",
+                 id="1e300"),
+    pytest.param("id,wx,wy,wz,dx,dy\na,1,2,3,1,2\n", "mixed 2D/3D.*dz", id="mixed-2d-3d"),
+    pytest.param(H3 + ",1,2,3,1,2,3\n", "column id is empty", id="empty-id"),
+    pytest.param(H3 + "a,0,0,0,0,0,0\na,0,0,0,5,0,0\nb,1,1,1,1,1,1\n",
+                 "id 'a' .* conflicting destination", id="conflicting-destinations"),
 ])
 def test_bad_fiducial_files(tmp_path, text, message):
     with pytest.raises(CsvError, match=message):

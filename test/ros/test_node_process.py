@@ -33,17 +33,21 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def start_node(name, state_dir=None, log=None, **params):
-    """``python -m rbc_registration.ros.node`` with a node name and parameters."""
+def start_node(name, state_dir=None, log=None, env=None, ros_args=(), popen=None, **params):
+    """``python -m rbc_registration.ros.node`` with a node name and parameters.
+
+    :param env: extra environment variables; :param ros_args: extra ``--ros-args`` arguments;
+    :param popen: extra ``subprocess.Popen`` arguments (e.g. ``preexec_fn``, ``stdout``).
+    """
     args = [sys.executable, "-m", "rbc_registration.ros.node", "--ros-args", "-r",
-            f"__node:={name}", "-p", "debounce_period:=0.05"]
+            f"__node:={name}", "-p", "debounce_period:=0.05", *ros_args]
     if state_dir:
         args += ["-p", f"state_dir:={state_dir}"]
     for key, value in params.items():
         args += ["-p", f"{key}:={value}"]
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    return subprocess.Popen(args, env=env, stdout=log or subprocess.DEVNULL,
-                            stderr=subprocess.STDOUT)
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", **(env or {}))
+    kwargs = {"stdout": log or subprocess.DEVNULL, "stderr": subprocess.STDOUT, **(popen or {})}
+    return subprocess.Popen(args, env=env, **kwargs)
 
 
 def stop(proc, sig=signal.SIGINT):
@@ -60,6 +64,22 @@ def expected_answers(cell, indices=None):
     model = expected_state(cell, indices, debounce_period=0.05).model
     tc = model.correct(cell["targets"])
     return tc
+
+
+def status_sub(ros, name):
+    """Collect ``/<name>/status`` messages (latched) in a list; returns (list, subscription)."""
+    statuses = []
+    sub = ros.client.create_subscription(RegistrationStatus, f"/{name}/status", statuses.append,
+                                         LATCHED)
+    return statuses, sub
+
+
+def process_answers(ros, name, cell):
+    """Recompute, then the answer keys of ``~/correct_target`` for every target of ``cell``."""
+    assert ros.call(Trigger, f"/{name}/recompute", Trigger.Request(), 30).success
+    return [answer_key(ros.call(CorrectTarget, f"/{name}/correct_target",
+                                CorrectTarget.Request(target=target_msg(t)), 30))
+            for t in cell["targets"]]
 
 
 def check_answers(answers, tc):
@@ -111,16 +131,10 @@ class TestKillAndRestart:
         cls.ros.stop()
 
     def status_sub(self, name):
-        statuses = []
-        sub = self.ros.client.create_subscription(RegistrationStatus, f"/{name}/status",
-                                                  statuses.append, LATCHED)
-        return statuses, sub
+        return status_sub(self.ros, name)
 
     def answers(self, name, cell):
-        assert self.ros.call(Trigger, f"/{name}/recompute", Trigger.Request(), 30).success
-        return [answer_key(self.ros.call(CorrectTarget, f"/{name}/correct_target",
-                                         CorrectTarget.Request(target=target_msg(t)), 30))
-                for t in cell["targets"]]
+        return process_answers(self.ros, name, cell)
 
     def test_kill_9_mid_stream_then_restart_gives_the_same_model(self, tmp_path):
         cell = make_cell(seed=5, repeats=4)

@@ -101,3 +101,10 @@ def test_api_reference_documents_every_parameter_topic_and_service():
     assert len(names) >= 13
     for name in sorted(names) + [f"`{p}`" for p in SPECS]:
         assert name in doc, f"{name} is not documented in msg_docs/README.md"
+
+
+def test_a_wrong_type_names_the_parameter_and_both_types():
+    assert params.type_error("sigma", "INTEGER", 1) == (
+        "Wrong parameter type: sigma must be of type double, got integer 1 (write 1.0)")
+    assert params.type_error("interpolation", "BOOL", True) == (
+        "Wrong parameter type: interpolation must be of type string, got bool True")

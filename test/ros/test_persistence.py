@@ -1,7 +1,10 @@
 """Journal and snapshot of registration_node (pure: no rclpy)."""
 
+import errno
 import json
 import os
+import subprocess
+import sys
 
 import pytest
 
@@ -118,3 +121,93 @@ def test_write_atomic_replaces_whole_file(tmp_path):
     write_atomic(path, "two")
     assert open(path).read() == "two"
     assert os.listdir(tmp_path / "sub") == ["calibration.json"]
+
+
+# -- write failures (disk full, file-size limit): nothing of a failed record stays -------------
+def short_writes_then(error_no, fail_on):
+    """A fake ``os.write``: call ``fail_on`` writes half of its data, the next call raises."""
+    real = os.write
+    calls = {"n": 0, "failing": False}
+
+    def fake(fd, data):
+        calls["n"] += 1
+        if calls["failing"]:
+            calls["failing"] = False
+            raise OSError(error_no, os.strerror(error_no))
+        if calls["n"] == fail_on:
+            calls["failing"] = True
+            return real(fd, bytes(data[:len(data) // 2]))
+        return real(fd, data)
+    return fake
+
+
+def test_a_failed_write_is_cut_off_and_never_reappears(tmp_path, monkeypatch):
+    j = Journal(str(tmp_path), HEADER)
+    j.load()
+    j.append(records()[0])
+    size = os.path.getsize(tmp_path / JOURNAL_NAME)
+    monkeypatch.setattr(os, "write", short_writes_then(errno.ENOSPC, fail_on=1))
+    with pytest.raises(OSError, match="No space left"):
+        j.append(records()[1])           # half of it was written, then the disk was full
+    assert os.path.getsize(tmp_path / JOURNAL_NAME) == size   # cut off again at once
+    monkeypatch.undo()
+    j.append(records()[2])               # space again: the next record follows cleanly
+    j.close()
+    assert Journal(str(tmp_path), HEADER).load() == ([records()[0], records()[2]], [])
+
+
+def test_a_failed_cut_off_is_repeated_before_the_next_record(tmp_path, monkeypatch):
+    j = Journal(str(tmp_path), HEADER)
+    j.load()
+    monkeypatch.setattr(os, "write", short_writes_then(errno.EFBIG, fail_on=1))
+    monkeypatch.setattr(os, "ftruncate", lambda fd, n: (_ for _ in ()).throw(OSError(errno.EIO,
+                                                                                   "I/O error")))
+    with pytest.raises(OSError, match="File too large"):
+        j.append(records()[0])
+    monkeypatch.undo()
+    j.append(records()[1])
+    j.close()
+    assert Journal(str(tmp_path), HEADER).load() == ([records()[1]], [])
+
+
+def test_a_new_journal_whose_header_cannot_be_written_yet(tmp_path, monkeypatch):
+    j = Journal(str(tmp_path), HEADER)
+    monkeypatch.setattr(os, "write", short_writes_then(errno.ENOSPC, fail_on=1))
+    loaded, warnings = j.load()
+    assert loaded == [] and len(warnings) == 1 and "header not written yet" in warnings[0]
+    monkeypatch.undo()
+    j.append(records()[0])               # the header goes first, with the record
+    j.close()
+    assert Journal(str(tmp_path), HEADER).load() == ([records()[0]], [])
+
+
+FSIZE_WRITER = """
+import resource, signal, sys
+from rbc_registration.core.accumulator import Measurement
+from rbc_registration.ros.persistence import Journal
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)       # writes beyond the limit fail with EFBIG
+resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[2]), int(sys.argv[2])))
+j = Journal(sys.argv[1], {"working_frame": "tracker", "destination_frame": "world",
+                          "dimension": 3})
+j.load()
+accepted = failed = 0
+for k in range(200):
+    try:
+        j.append(Measurement(f"H{k}", (0.1 * k, 0.2, 0.3), (1.0, 2.0, 3.0), 100.0 + k))
+        accepted += 1
+    except OSError as exc:
+        failed += 1
+        error = exc
+print(accepted, failed, error.errno)
+"""
+
+
+def test_a_real_file_size_limit_keeps_exactly_the_accepted_records(tmp_path):
+    """RLIMIT_FSIZE in a child process: real EFBIG short writes, as on a full disk."""
+    out = subprocess.run([sys.executable, "-c", FSIZE_WRITER, str(tmp_path), "4000"],
+                         capture_output=True, text=True, check=True, timeout=60).stdout
+    accepted, failed, error_no = map(int, out.split())
+    assert 0 < accepted < 200 and accepted + failed == 200 and error_no == errno.EFBIG
+    loaded, warnings = Journal(str(tmp_path), HEADER).load()
+    assert warnings == [] and [r.fiducial_id for r in loaded] == [f"H{k}" for k in
+                                                                  range(accepted)]

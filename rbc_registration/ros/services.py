@@ -1,0 +1,112 @@
+"""The services of ``registration_node`` (a mixin of
+:class:`~rbc_registration.ros.node.RegistrationNode`): target correction from one immutable
+snapshot of the model, enabling fiducials, reset, recompute and save. Bad requests are answered
+``success=False`` with the reason; see msg_docs/README.md.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from geometry_msgs.msg import PointStamped
+from std_srvs.srv import Trigger
+
+from rbc_registration_interfaces.srv import CorrectTarget, CorrectTargets, SetFiducialEnabled
+
+from . import conversions as conv
+from . import params, reports
+from .worker import EMPTY_STATE
+
+RECOMPUTE_TIMEOUT_S = 60.0
+
+
+class ServicesMixin:
+    """Service callbacks; the node provides ``_state``, ``_settings``, ``_ingest``, ``_worker``,
+    ``_pub_lock``, ``_generation``, ``_pub_markers``, ``_publish_status`` and ``_save``."""
+
+    _state: Any
+    _settings: Any
+    _ingest: Any
+    _worker: Any
+    _pub_lock: Any
+    _generation: int
+    _pub_markers: Any
+
+    def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
+        """Answer from one snapshot of the model: (results, "", note) or ([], reason, "")."""
+        state, s = self._state, self._settings
+        model = state.model
+        if model is None:
+            return [], f"no model yet: {state.error}", ""
+        try:
+            points, z = conv.targets_to_array(targets, s.working_frame, s.dimension)
+            tc = model.correct(points)
+        except ValueError as exc:
+            return [], str(exc), ""
+        applied = params.corrections_applied(s.apply_corrections, model.recommendation)
+        rho = model.rho if model.rho is not None else float("nan")
+        note = (f"corrections {'applied' if applied else 'not applied'} (mode "
+                f"{s.apply_corrections}, recommendation {model.recommendation}, rho {rho:.3g})")
+        return conv.target_corrections_to_msgs(tc, z, applied, s.destination_frame,
+                                               [t.header.stamp for t in targets]), "", note
+
+    def _on_correct_target(self, request: CorrectTarget.Request,
+                           response: CorrectTarget.Response) -> CorrectTarget.Response:
+        results, error, note = self._correct([request.target])
+        if error:
+            response.success, response.message = False, error
+            return response
+        conv.fill_correct_target_response(response, results[0])
+        response.message = note
+        return response
+
+    def _on_correct_targets(self, request: CorrectTargets.Request,
+                            response: CorrectTargets.Response) -> CorrectTargets.Response:
+        if not request.targets:
+            response.success, response.message = True, "no targets"
+            return response
+        if len(request.targets) > self._settings.max_targets:
+            response.success = False
+            response.message = (f"{len(request.targets)} targets in one request, more than "
+                                f"max_targets ({self._settings.max_targets}): split the request")
+            return response
+        results, error, note = self._correct(list(request.targets))
+        response.success, response.results, response.message = not error, results, error or note
+        return response
+
+    def _on_set_fiducial_enabled(self, request: SetFiducialEnabled.Request,
+                                 response: SetFiducialEnabled.Response) -> Any:
+        response.success, response.message = self._ingest.set_enabled(request.fiducial_id,
+                                                                       request.enabled)
+        if response.success:
+            self._worker.notify()
+        return response
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        with self._pub_lock:
+            self._generation += 1
+            self._state = EMPTY_STATE
+        response.success, response.message = self._ingest.reset()
+        self._publish_status()
+        with self._pub_lock:
+            self._pub_markers.publish(reports.markers_msg(EMPTY_STATE, self._settings,
+                                                          self.get_clock().now().to_msg()))
+        return response
+
+    def _on_recompute(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        finished = self._worker.wait(self._worker.request_now(), RECOMPUTE_TIMEOUT_S)
+        state = self._state
+        response.success = finished and state.model is not None
+        response.message = (state.error or f"model rebuilt from {len(state.fiducials.ids)} "
+                            f"fiducials") if finished else "recompute timed out"
+        return response
+
+    def _on_save(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        if not self._settings.state_dir:
+            response.success, response.message = False, "state_dir is not set: nothing to save to"
+            return response
+        try:
+            response.success, response.message = True, f"saved {self._save(self._state)}"
+        except OSError as exc:
+            response.success, response.message = False, f"save failed: {exc}"
+        return response

@@ -1,0 +1,99 @@
+"""The calibration snapshot of registration_node (pure: no rclpy): atomic writes, an interrupted
+write (SIGKILL inside it, through the test hook), and the start-up tidy-up that never lets a
+partial or corrupt snapshot be used."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from rbc_registration.ros import snapshot
+from rbc_registration.ros.snapshot import (PAUSE_ENV, SNAPSHOT_FORMAT, SNAPSHOT_NAME,
+                                           read_snapshot, tidy_state_dir, write_atomic)
+
+GOOD = json.dumps({"format": SNAPSHOT_FORMAT, "n_measurements": 3})
+
+
+def test_a_failed_write_keeps_the_old_snapshot_and_leaves_no_temporary_file(tmp_path,
+                                                                            monkeypatch):
+    path = str(tmp_path / SNAPSHOT_NAME)
+    write_atomic(path, GOOD)
+
+    def full_disk(fd):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(snapshot.os, "fsync", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        write_atomic(path, json.dumps({"format": SNAPSHOT_FORMAT, "n_measurements": 4}))
+    assert os.listdir(tmp_path) == [SNAPSHOT_NAME]
+    assert read_snapshot(path)["n_measurements"] == 3
+
+
+@pytest.mark.parametrize("content, match", [
+    pytest.param(GOOD[:len(GOOD) // 2], "not valid JSON", id="cut-short"),
+    pytest.param("[1, 2]", "not a snapshot of format", id="other-json"),
+    pytest.param(b"\xff\xfe", "not valid JSON", id="binary"),
+])
+def test_read_snapshot_refuses_a_partial_or_foreign_file(tmp_path, content, match):
+    path = tmp_path / SNAPSHOT_NAME
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(ValueError, match=match):
+        read_snapshot(str(path))
+
+
+def test_tidy_removes_temporary_files_and_moves_a_corrupt_snapshot_aside(tmp_path):
+    (tmp_path / f"{SNAPSHOT_NAME}.tmp.1234").write_text(GOOD[:10])
+    (tmp_path / SNAPSHOT_NAME).write_text(GOOD[:-3])
+    (tmp_path / "journal.jsonl").write_text("")
+    warnings = tidy_state_dir(str(tmp_path))
+    assert len(warnings) == 2
+    assert "removed calibration.json.tmp.1234: a snapshot write was interrupted" in warnings[0]
+    assert "is not a valid snapshot (not valid JSON" in warnings[1]
+    assert "rebuilt from the journal" in warnings[1]
+    names = sorted(os.listdir(tmp_path))
+    assert names[0].startswith(f"{SNAPSHOT_NAME}.corrupt.") and names[1] == "journal.jsonl"
+    assert len(names) == 2
+
+
+def test_tidy_keeps_a_good_snapshot_and_accepts_a_missing_directory(tmp_path):
+    (tmp_path / SNAPSHOT_NAME).write_text(GOOD)
+    assert tidy_state_dir(str(tmp_path)) == []
+    assert (tmp_path / SNAPSHOT_NAME).read_text() == GOOD
+    assert tidy_state_dir(str(tmp_path / "nope")) == []
+
+
+WRITER = """
+import sys
+from rbc_registration.ros.snapshot import write_atomic
+write_atomic(sys.argv[1], sys.argv[2])
+"""
+
+
+def test_sigkill_inside_a_write_leaves_the_old_snapshot_whole(tmp_path):
+    """The test hook pauses the write half way; SIGKILL lands inside it, deterministically."""
+    path = str(tmp_path / SNAPSHOT_NAME)
+    write_atomic(path, GOOD)
+    marker = tmp_path / "paused"
+    new = json.dumps({"format": SNAPSHOT_FORMAT, "n_measurements": 4, "pad": "x" * 10000})
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, path, new],
+                            env=dict(os.environ, **{PAUSE_ENV: str(marker)}))
+    try:
+        end = time.monotonic() + 60
+        while not marker.exists() and proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.01)
+        assert marker.exists(), "the writer did not reach the hook"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    tmp = marker.read_text().strip()
+    assert os.path.getsize(tmp) == len(new) // 2          # the half-written temporary file
+    assert read_snapshot(path)["n_measurements"] == 3     # the snapshot itself is untouched
+    warnings = tidy_state_dir(str(tmp_path))
+    assert len(warnings) == 1 and "interrupted" in warnings[0] and not os.path.exists(tmp)
+    assert read_snapshot(path)["n_measurements"] == 3
