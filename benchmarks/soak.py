@@ -182,7 +182,8 @@ def run(args, workdir: str, out: str) -> dict:
         procs.append(("node", node))
         script = os.path.join(HERE, "soak_procs.py")
         procs.append(("streamer", spawn([sys.executable, script, "streamer", name, workdir,
-                                         "--rate", str(args.rate)],
+                                         "--rate", str(args.rate),
+                                         "--max-pairs", str(args.max_pairs)],
                                         os.path.join(logs, "streamer.log"))))
         for k in range(args.clients):
             procs.append((f"client{k}", spawn(
@@ -268,7 +269,8 @@ def run(args, workdir: str, out: str) -> dict:
         status = watch.latest
         stop(node)
         return {"settings": {"duration_s": args.duration, "clients": args.clients,
-                             "rate": args.rate, "think_s": args.think,
+                             "rate": args.rate, "max_pairs": args.max_pairs,
+                             "think_s": args.think,
                              "call_timeout_s": args.call_timeout, "sample_s": args.sample,
                              "node_parameters": "defaults + state_dir (temporary)",
                              "domain": int(os.environ["ROS_DOMAIN_ID"]), "node_name": name},
@@ -314,6 +316,9 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=600.0, help="seconds of load")
     parser.add_argument("--clients", type=int, default=4, help="correct_target client processes")
     parser.add_argument("--rate", type=float, default=200.0, help="FiducialPairs per second")
+    parser.add_argument("--max-pairs", type=int, default=0,
+                        help="the streamer stops after this many pairs (0: streams the whole "
+                             "run); e.g. 480 for a services-only run on a fixed model")
     parser.add_argument("--think", type=float, default=0.01,
                         help="seconds a client waits between calls (0: back-to-back)")
     parser.add_argument("--call-timeout", type=float, default=5.0,

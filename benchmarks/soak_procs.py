@@ -35,6 +35,7 @@ import numpy as np  # noqa: E402
 READY_TIMEOUT = 180.0   # s: give up when soak.py does not say go
 DISCOVERY_TIMEOUT = 60.0
 MODEL_TIMEOUT = 60.0
+LATE_LIMIT = 10.0       # s: the streamer stops this long after the end even if behind schedule
 NOISE_WORKING = 5e-5    # m per axis
 NOISE_DESTINATION = 1e-5
 WORKING_FRAME, DESTINATION_FRAME = "tracker", "world"
@@ -109,9 +110,11 @@ def streamer(args, rclpy, node, executor) -> dict:
     msg.destination_frame_id = DESTINATION_FRAME
     while True:
         due = t0 + published * period  # a fixed schedule: no drift, catch up when late
-        if due >= t_end:
-            break
         now = time.monotonic()
+        if due >= t_end or now > t_end + LATE_LIMIT:  # too far behind: stop, reported short
+            break
+        if args.max_pairs and published >= args.max_pairs:
+            break  # a services-only run: the model is built, no further pairs
         if due > now:
             time.sleep(due - now)
         else:
@@ -141,7 +144,8 @@ def streamer(args, rclpy, node, executor) -> dict:
     # Keep the writer alive until the node has every sample (reliable delivery needs it).
     from rclpy.duration import Duration
     acked = pub.wait_for_all_acked(Duration(seconds=30))
-    return {"published": published, "rate": args.rate, "seconds": t_end - t0,
+    return {"published": published, "rate": args.rate, "max_pairs": args.max_pairs,
+            "seconds": t_end - t0,
             "publish_retries": retries, "all_acked": bool(acked), "lateness_max_s": lateness_max,
             "late_over_10ms": int(late_over_10ms), "holes": len(truth),
             "holes_with_id": sum(bool(i) for i in ids)}
@@ -229,6 +233,7 @@ def main() -> int:
     parser.add_argument("workdir")
     parser.add_argument("--rate", type=float, default=200.0, help="pairs per second")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--max-pairs", type=int, default=0, help="stop after this many (0: never)")
     parser.add_argument("--index", type=int, default=0, help="client number")
     parser.add_argument("--think", type=float, default=0.01, help="s between a client's calls")
     parser.add_argument("--timeout", type=float, default=5.0, help="s before a call times out")

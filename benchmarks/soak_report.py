@@ -113,6 +113,8 @@ def summarise(results: dict) -> dict:
     streamer = results["children"].get("streamer", {})
     published = streamer.get("published", -1)
     expected = int(np.ceil(settings["rate"] * settings["duration_s"] - 1e-9))
+    if settings.get("max_pairs"):
+        expected = min(expected, settings["max_pairs"])
     status = results["node_final_status"]
     journal = results["journal"]
     cpu = [s["node_cpu_pct"] for s in samples if "node_cpu_pct" in s]
@@ -177,9 +179,11 @@ def markdown(results: dict, summary: dict) -> str:
     lines = [
         f"Soak: {s['duration_s']:g} s, {s['clients']} client processes calling "
         f"`~/correct_target` ({think}, timeout {s['call_timeout_s']:g} s), 1 streamer at "
-        f"{s['rate']:g} FiducialPair/s; node with default parameters, journal in a temporary "
-        f"state_dir. Machine: {m['cores']} cores ({m['cpu']}), Python {m['python']}, rclpy "
-        f"{m['rclpy']}, {m['rmw']}; code {m.get('git', '?')}.",
+        f"{s['rate']:g} FiducialPair/s"
+        f"{' (only the first %d pairs)' % s['max_pairs'] if s.get('max_pairs') else ''}; "
+        f"node with default parameters, journal in a temporary state_dir. Machine: "
+        f"{m['cores']} cores ({m['cpu']}), Python {m['python']}, rclpy {m['rclpy']}, "
+        f"{m['rmw']}; code {m.get('git', '?')}.",
         "",
         "| client | calls | p50 ms | p90 ms | p99 ms | max ms |",
         "|---|---|---|---|---|---|",

@@ -37,7 +37,7 @@ def register(args: argparse.Namespace) -> int:
     model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
                         working_repeats=fid.working_repeats)
     tgt = read_targets(args.targets, fid.dimension) if args.targets else None
-    loo = leave_one_out(model, fid.working_repeats) if args.loo else None
+    loo = leave_one_out(model) if args.loo else None
     report = model_report(model, tgt.ids if tgt else (), tgt.working if tgt else None,
                           tgt.destination if tgt else None, loo, args.unit)
     print(format_report(report))

@@ -157,7 +157,7 @@ def evaluate_contents(contents: BagContents, settings: Settings,
         targets = bag_targets(contents, settings)
     if targets is not None and targets.destination is None:
         notes.append("targets have no truth: TRE not computed")
-    loo_err = leave_one_out(model, fiducials.working_repeats) if loo else None
+    loo_err = leave_one_out(model) if loo else None
     report = model_report(model, targets.ids if targets else (),
                           targets.working if targets else None,
                           targets.destination if targets else None, loo_err, "m")

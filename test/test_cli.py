@@ -71,7 +71,7 @@ def test_register_loo_closed_form_and_subsets(ra_files):
                                     uncorrected_subset=(0, 40, 120, 200, 270),
                                     corrected_subset=(10, 150, 260)),
                         working_repeats=cell.fiducial_measurements)
-    loo = leave_one_out(model, cell.fiducial_measurements)
+    loo = leave_one_out(model)
     assert rep["loo"]["tre_c_median"] == pytest.approx(float(np.median(loo.tre_c)))
     assert len(rep["loo"]["fiducials"]) == 277 and rep["steps"] == 1
     assert rep["targets"] == [] and rep["summary"]["tre_u_median"] is None

@@ -20,6 +20,7 @@ from typing import Iterable, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .noise import RepeatStats
 from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSet, Measurement,
                       Record, RejectedMeasurement, quote)
 from .validation import MAX_ABS_COORDINATE
@@ -181,7 +182,7 @@ class FiducialAccumulator:
                 if dist > self.outlier_distance:
                     raise self.reject(
                         "outlier", f"fiducial {fid!r}: {name} point is {dist:.6g} from the mean "
-                                   f"of its {len(fiducial.working)} earlier repeat(s), more than "
+                                   f"of its {fiducial.n} earlier repeat(s), more than "
                                    f"outlier_distance {self.outlier_distance:g}")
         return Measurement(fid, w, d, stamp, auto)
 
@@ -278,8 +279,8 @@ class FiducialAccumulator:
             ids=tuple(ids),
             working=np.array([f.mean_w() for f in fids]).reshape(-1, d),
             destination=np.array([f.mean_d() for f in fids]).reshape(-1, d),
-            working_repeats=tuple(np.array(f.working).reshape(-1, d) for f in fids),
-            destination_repeats=tuple(np.array(f.destination).reshape(-1, d) for f in fids),
+            repeat_stats=RepeatStats(np.array([f.n for f in fids], dtype=np.int64),
+                                     np.array([f.variance_w() for f in fids], dtype=np.float64)),
             disabled_ids=tuple(f for f in self._order if not self._fiducials[f].enabled),
             n_measurements=self.n_measurements)
 
@@ -306,8 +307,7 @@ class FiducialAccumulator:
         return sum(not f.enabled for f in self._fiducials.values())
 
     def state_digest(self) -> tuple:
-        """A hashable summary of the state (ids, enabled flags, all repeats): equal digests mean
-        equal accumulators. For tests and restart checks."""
-        return tuple((f, self._fiducials[f].enabled, tuple(self._fiducials[f].working),
-                      tuple(self._fiducials[f].destination)) for f in self._order)
+        """A hashable summary of the state (ids, enabled flags, every running statistic): equal
+        digests mean equal accumulators. For tests and restart checks."""
+        return tuple((f, self._fiducials[f].digest()) for f in self._order)
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple, Optional, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,8 +40,7 @@ def target_errors(model: RbcModel, targets_working: ArrayLike,
     return TargetErrors(tre_u, tre_c, tre_c - tre_u)
 
 
-def leave_one_out(model: RbcModel, working_repeats: Optional[Sequence[ArrayLike]] = None
-                  ) -> TargetErrors:
+def leave_one_out(model: RbcModel) -> TargetErrors:
     """Accuracy estimate without targets: each fiducial in turn is left out, the model rebuilt
     from the others (same config; kriging reuses the full model's hyper-parameters) and the
     left-out fiducial is evaluated as a target.
@@ -52,15 +51,14 @@ def leave_one_out(model: RbcModel, working_repeats: Optional[Sequence[ArrayLike]
     j = len(x)
     cfg = ModelConfig(**{**model.config.__dict__, "uncorrected_subset": None,
                          "corrected_subset": None})
-    if cfg.sigma is None and model.sigma is not None:
+    if cfg.sigma is None and model.sigma:
         cfg = ModelConfig(**{**cfg.__dict__, "sigma": model.sigma})
     tre_u = np.empty(j)
     tre_c = np.empty(j)
     for k in range(j):
         keep = np.arange(j) != k
-        reps = None if working_repeats is None else [r for i, r in enumerate(working_repeats)
-                                                     if i != k]
-        sub = build_model(x[keep], y[keep], cfg, working_repeats=reps,
+        sub = build_model(x[keep], y[keep], cfg,
+                          repeat_statistics=model.repeat_stats.subset(keep),
                           kriging_hyperparameters=model.kriging_hyperparameters)
         err = target_errors(sub, x[k:k + 1], y[k:k + 1])
         tre_u[k], tre_c[k] = err.tre_u[0], err.tre_c[0]

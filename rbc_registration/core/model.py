@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .interpolation import PaperInterpolator
 from .kriging import KrigingHyperparameters, KrigingInterpolator
-from .noise import assess, estimate_sigma
+from .noise import RepeatStats, assess, repeat_stats, sigma_from_stats
 from .registration import Registration, rigid_fit
 from .restoration import METHODS, RestorationResult, restore_rigid_body
 from .validation import as_point_pairs, as_points, check_subset
@@ -103,6 +103,7 @@ class RbcModel:
     destination: NDArray[np.float64]
     counts: NDArray[np.int64]
     config: ModelConfig
+    repeat_stats: RepeatStats
     restoration: RestorationResult
     uncorrected: Registration
     corrected: Registration
@@ -153,6 +154,7 @@ def _fit_subset(working: NDArray[np.float64], destination: NDArray[np.float64],
 def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig = ModelConfig(),
                 *, ids: Optional[Sequence[str]] = None,
                 working_repeats: Optional[Sequence[ArrayLike]] = None,
+                repeat_statistics: Optional[RepeatStats] = None,
                 kriging_hyperparameters: Optional[KrigingHyperparameters] = None) -> RbcModel:
     """Build the RBC registration model from J fiducials.
 
@@ -162,6 +164,8 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     :param ids: fiducial ids (default ``"0"``, ``"1"``, ...).
     :param working_repeats: the individual working-frame measurements of each fiducial, one
         (n_j, d) array each; they give sigma (when ``config.sigma`` is None) and n_j for kriging.
+    :param repeat_statistics: the same information as :class:`~.noise.RepeatStats` (counts and
+        per-fiducial variances), e.g. kept as running sums; give one of the two at most.
     :param kriging_hyperparameters: reuse fitted GP hyper-parameters instead of fitting them.
     :return: :class:`RbcModel`.
     :raises ValueError: on bad input or a degenerate fiducial configuration.
@@ -173,16 +177,21 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
         raise ValueError(f"got {len(names)} ids for {j} fiducials")
     if len(set(names)) != j:
         raise ValueError("fiducial ids must be unique")
-    if working_repeats is None:
-        counts = np.ones(j, dtype=np.int64)
-        sigma_est = None
-    else:
+    if working_repeats is not None and repeat_statistics is not None:
+        raise ValueError("give working_repeats or repeat_statistics, not both")
+    if working_repeats is not None:
         if len(working_repeats) != j:
             raise ValueError(f"got repeats for {len(working_repeats)} fiducials, expected {j}")
-        groups = [as_points(g, f"repeats of fiducial {names[k]}", config.dimension, 1)
-                  for k, g in enumerate(working_repeats)]
-        counts = np.array([len(g) for g in groups], dtype=np.int64)
-        sigma_est = estimate_sigma(groups)
+        stats = repeat_stats(working_repeats, config.dimension)
+    elif repeat_statistics is not None:
+        stats = RepeatStats(np.asarray(repeat_statistics.counts, dtype=np.int64),
+                            np.asarray(repeat_statistics.variances, dtype=np.float64))
+        if stats.counts.shape != (j,) or stats.variances.shape != (j,) or (stats.counts < 1).any():
+            raise ValueError(f"repeat statistics must hold {j} counts >= 1 and {j} variances")
+    else:
+        stats = RepeatStats(np.ones(j, dtype=np.int64), np.full(j, np.nan))
+    counts = stats.counts
+    sigma_est = sigma_from_stats(stats)
     if config.sigma is not None:
         sigma, source = config.sigma, "given"
     elif sigma_est is not None:
@@ -201,5 +210,5 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     else:
         interpolator = KrigingInterpolator(x, restoration.corrections, sigma, counts,
                                            kriging_hyperparameters)
-    return RbcModel(names, x, y, counts, config, restoration, uncorrected, corrected, sigma,
+    return RbcModel(names, x, y, counts, config, stats, restoration, uncorrected, corrected, sigma,
                     source, rho, recommendation, interpolator)

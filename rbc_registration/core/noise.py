@@ -6,11 +6,48 @@ import math
 from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from .validation import as_points
 
 RECOMMENDATIONS = ("apply", "uncertain", "do_not_apply", "unknown")
+
+
+class RepeatStats(NamedTuple):
+    """What repeated measurements tell the model, per fiducial: ``counts`` n_j and
+    ``variances`` sigma_j^2 = sum over axes of the sample variance (ddof = 1) of its working-frame
+    measurements, NaN where n_j < 2. O(J) memory, however many repeats were taken."""
+
+    counts: NDArray[np.int64]
+    variances: NDArray[np.float64]
+
+    def subset(self, index: ArrayLike) -> "RepeatStats":
+        """The statistics of the fiducials ``index`` (indices or a boolean mask)."""
+        return RepeatStats(self.counts[index], self.variances[index])
+
+
+def repeat_stats(repeats: Sequence[ArrayLike], dim: Optional[int] = None) -> RepeatStats:
+    """:class:`RepeatStats` of one (n_j, d) array of working-frame measurements per fiducial.
+
+    :raises ValueError: on an empty group, NaN/inf or inconsistent dimensions.
+    """
+    counts, variances = [], []
+    for k, group in enumerate(repeats):
+        g = as_points(group, f"repeats of fiducial {k}", dim, 1)
+        dim = g.shape[1]
+        counts.append(len(g))
+        variances.append(float(np.sum(np.var(g, axis=0, ddof=1))) if len(g) >= 2 else np.nan)
+    return RepeatStats(np.array(counts, dtype=np.int64), np.array(variances, dtype=np.float64))
+
+
+def sigma_from_stats(stats: RepeatStats) -> Optional[float]:
+    """sigma (see :func:`estimate_sigma`) from per-fiducial statistics; None without repeats."""
+    measured = stats.variances[stats.counts >= 2]
+    if measured.size == 0:
+        return None
+    if not np.all(np.isfinite(measured)) or (measured < 0).any():
+        raise ValueError("repeat variances must be finite and >= 0")
+    return math.sqrt(float(np.mean(measured)))
 
 
 def estimate_sigma(repeats: Sequence[ArrayLike]) -> Optional[float]:
@@ -26,16 +63,7 @@ def estimate_sigma(repeats: Sequence[ArrayLike]) -> Optional[float]:
     :return: sigma (same unit as the points), or ``None`` when no fiducial was measured twice.
     :raises ValueError: on NaN/inf or inconsistent dimensions.
     """
-    variances = []
-    dim = None
-    for k, group in enumerate(repeats):
-        g = as_points(group, f"repeats of fiducial {k}", dim)
-        dim = g.shape[1]
-        if len(g) >= 2:
-            variances.append(float(np.sum(np.var(g, axis=0, ddof=1))))
-    if not variances:
-        return None
-    return math.sqrt(float(np.mean(variances)))
+    return sigma_from_stats(repeat_stats(repeats))
 
 
 class Assessment(NamedTuple):

@@ -11,6 +11,8 @@ from typing import Any, Union
 import numpy as np
 from numpy.typing import NDArray
 
+from .noise import RepeatStats
+
 #: Reasons a measurement is rejected (the counters of ``FiducialAccumulator.rejected``).
 REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed", "stale")
 
@@ -72,41 +74,56 @@ Record = Union[Measurement, EnabledChange]
 class FiducialSet:
     """The enabled fiducials, ready for ``build_model`` (first-seen order, arrays (J, d)).
 
-    ``working`` / ``destination`` are the means of the repeats; ``working_repeats[j]`` is the
-    (n_j, d) array of all measurements of fiducial ``ids[j]`` in the working frame.
+    ``working`` / ``destination`` are the means of the repeats; ``repeat_stats`` holds the count
+    and working-frame scatter of each fiducial (``build_model(repeat_statistics=...)``).
     """
 
     ids: tuple[str, ...]
     working: NDArray[np.float64]
     destination: NDArray[np.float64]
-    working_repeats: tuple[NDArray[np.float64], ...]
-    destination_repeats: tuple[NDArray[np.float64], ...]
+    repeat_stats: RepeatStats
     disabled_ids: tuple[str, ...]
     n_measurements: int
 
 
 class FiducialRepeats:
-    """Repeats of one fiducial with running sums (for O(1) means); the accumulator's store."""
+    """The repeats of one fiducial as running statistics (Welford): count, means and sums of
+    squared deviations per axis in both frames. O(d) memory per fiducial however many repeats
+    arrive, so a node fed for hours does not grow; replaying the same records in the same order
+    gives bit-identical values."""
 
-    __slots__ = ("working", "destination", "sum_w", "sum_d", "enabled")
+    __slots__ = ("n", "_mean_w", "_m2_w", "_mean_d", "_m2_d", "enabled")
 
     def __init__(self, dimension: int) -> None:
-        self.working: list[tuple[float, ...]] = []
-        self.destination: list[tuple[float, ...]] = []
-        self.sum_w = [0.0] * dimension
-        self.sum_d = [0.0] * dimension
+        self.n = 0
+        self._mean_w = [0.0] * dimension
+        self._m2_w = [0.0] * dimension
+        self._mean_d = [0.0] * dimension
+        self._m2_d = [0.0] * dimension
         self.enabled = True
 
     def add(self, working: tuple[float, ...], destination: tuple[float, ...]) -> None:
-        self.working.append(working)
-        self.destination.append(destination)
-        self.sum_w = [s + v for s, v in zip(self.sum_w, working, strict=True)]
-        self.sum_d = [s + v for s, v in zip(self.sum_d, destination, strict=True)]
+        self.n += 1
+        for mean, m2, point in ((self._mean_w, self._m2_w, working),
+                                (self._mean_d, self._m2_d, destination)):
+            for k, value in enumerate(point):
+                delta = value - mean[k]
+                mean[k] += delta / self.n
+                m2[k] += delta * (value - mean[k])
 
     def mean_w(self) -> tuple[float, ...]:
-        n = len(self.working)
-        return tuple(s / n for s in self.sum_w)
+        """Mean working-frame point."""
+        return tuple(self._mean_w)
 
     def mean_d(self) -> tuple[float, ...]:
-        n = len(self.destination)
-        return tuple(s / n for s in self.sum_d)
+        """Mean destination-frame point."""
+        return tuple(self._mean_d)
+
+    def variance_w(self) -> float:
+        """sigma_j^2: sum over axes of the working-frame sample variance; NaN below 2 repeats."""
+        return sum(self._m2_w) / (self.n - 1) if self.n >= 2 else float("nan")
+
+    def digest(self) -> tuple:
+        """Every stored value (for state comparisons)."""
+        return (self.n, self.enabled, tuple(self._mean_w), tuple(self._m2_w),
+                tuple(self._mean_d), tuple(self._m2_d))

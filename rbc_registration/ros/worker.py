@@ -61,7 +61,7 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int) -> Mo
     try:
         model = build_model(fiducials.working, fiducials.destination, model_config(settings),
                             ids=list(fiducials.ids),
-                            working_repeats=list(fiducials.working_repeats))
+                            repeat_statistics=fiducials.repeat_stats)
     except ValueError as exc:
         return ModelState(None, fiducials, settings, f"model not built: {exc}", stamp_ns)
     return ModelState(model, fiducials, settings, "", stamp_ns)

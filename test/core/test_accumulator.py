@@ -29,7 +29,10 @@ def test_explicit_ids_repeats_and_means():
     assert fs.ids == ("a", "b")
     np.testing.assert_allclose(fs.working, [[0.0005, 0, 0], [0.1, 0, 0]])
     np.testing.assert_allclose(fs.destination, [[1.0005, 1, 1], [1.1, 1, 1]])
-    assert [r.shape for r in fs.working_repeats] == [(2, 3), (1, 3)]
+    assert list(fs.repeat_stats.counts) == [2, 1]
+    # sigma_j^2: sum over axes of the sample variance of the repeats (NaN for one measurement)
+    assert fs.repeat_stats.variances[0] == pytest.approx(np.var([0, 0.001], ddof=1))
+    assert np.isnan(fs.repeat_stats.variances[1])
     assert fs.n_measurements == acc.n_measurements == 3
 
 
@@ -44,7 +47,7 @@ def test_auto_ids_by_proximity_in_destination_frame():
     acc.add("H1", [0.2, 0, 0], [1.2, 1, 1])
     assert acc.add(None, [0.2, 0, 0], [1.2, 1.001, 1]) == "H1"
     assert acc.fiducial_set().ids == ("auto-0000", "auto-0001", "H1")
-    assert acc.fiducial_set().working_repeats[0].shape == (2, 3)
+    assert acc.fiducial_set().repeat_stats.counts[0] == 2
 
 
 def test_auto_id_skips_an_explicit_id_of_the_same_form():
@@ -155,7 +158,7 @@ def test_enable_disable():
     acc.add("f1", [0.1, 0, 0], [1.1, 1, 1])  # still collected while disabled
     acc.set_enabled("f1", True)
     assert acc.fiducial_set().ids == ("f0", "f1", "f2", "f3")
-    assert acc.fiducial_set().working_repeats[1].shape == (2, 3)
+    assert acc.fiducial_set().repeat_stats.counts[1] == 2
     with pytest.raises(KeyError, match="unknown fiducial id 'nope'"):
         acc.set_enabled("nope", False)
 
@@ -238,7 +241,7 @@ def test_fiducial_set_is_ready_for_build_model():
             acc.add(f"H{k}", work[k] + rng.normal(0, 1e-5, 3), dest[k])
     fs = acc.fiducial_set()
     m = model.build_model(fs.working, fs.destination, model.ModelConfig(dimension=3),
-                          ids=list(fs.ids), working_repeats=list(fs.working_repeats))
+                          ids=list(fs.ids), repeat_statistics=fs.repeat_stats)
     assert tuple(m.ids) == fs.ids
     assert m.sigma_source == "repeats"
 
@@ -271,3 +274,21 @@ def test_restore_is_identical_for_any_stream(stream):
     assert other.n_measurements == acc.n_measurements
     a, b = acc.fiducial_set(), other.fiducial_set()
     assert a.ids == b.ids and a.disabled_ids == b.disabled_ids
+
+
+def test_running_statistics_match_the_repeats_and_stay_small():
+    """The store keeps running statistics per fiducial; they equal those of all the repeats."""
+    from rbc_registration.core.noise import estimate_sigma, repeat_stats
+    rng = np.random.default_rng(7)
+    acc = make(outlier_distance=0.0)
+    reps = {f"H{k}": rng.normal(0, 1e-4, (n, 3)) + k for k, n in enumerate((1, 2, 5, 400))}
+    for fid, rows in reps.items():
+        for row in rows:
+            acc.add(fid, row, row + 10.0)
+    fs = acc.fiducial_set()
+    want = repeat_stats(list(reps.values()))
+    np.testing.assert_array_equal(fs.repeat_stats.counts, want.counts)
+    np.testing.assert_allclose(fs.repeat_stats.variances, want.variances, rtol=1e-9)
+    np.testing.assert_allclose(fs.working, [r.mean(axis=0) for r in reps.values()], atol=1e-12)
+    assert estimate_sigma(list(reps.values())) == pytest.approx(
+        float(np.sqrt(np.nanmean(fs.repeat_stats.variances))), rel=1e-9)

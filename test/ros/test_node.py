@@ -185,7 +185,7 @@ class TestLiveRegistration(NodeTestBase):
         state = self.recompute(node)
         expected = expected_state(self.cell, with_ids=False)
         assert len(state.model.ids) == 48 and state.model.ids[0] == "auto-0000"
-        assert all(len(r) == 3 for r in state.fiducials.working_repeats)  # visits merged
+        assert all(n == 3 for n in state.fiducials.repeat_stats.counts)  # visits merged
         self.assert_answers_match_core(node, expected, self.cell["targets"][:3])
 
     def test_no_model_until_enough_fiducials(self):
