@@ -1,11 +1,10 @@
-"""Memory the node needs per accepted measurement, in process: what the soak's RSS growth
+"""Memory the node keeps per accepted measurement, in process: what the soak's RSS growth
 should be if nothing leaks.
 
-The node keeps every accepted measurement (all repeats, in the accumulator: they give sigma and
-the means), and the model state it serves holds the ``FiducialSet`` built from them (the repeats
-as numpy arrays). Two measurements on the soak's cell (48 holes, half with ids):
+Two measurements on the soak's cell (48 holes, half with ids):
 
-- default: the accumulator and one ``FiducialSet`` after ``--count`` measurements (tracemalloc).
+- default: the accumulator and one ``FiducialSet`` (what a model rebuild takes) after
+  ``--count`` measurements, traced by tracemalloc.
 - ``--node``: a ``RegistrationNode`` in this process (journal in a temporary ``state_dir``)
   takes ``--count`` ``FiducialPair`` messages through its subscription callback, with one model
   rebuild (by its own recompute thread) every 400 messages, as at 200 pairs/s with the 2 s

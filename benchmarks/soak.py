@@ -10,9 +10,14 @@ Every call's latency and every error (failed call, ``success=false``, timeout af
 seconds the node's RSS (/proc/PID/status VmRSS), CPU, threads, open files and its
 ``~/status`` counters. At the end: every published pair must have been accepted (the node's
 ``n_measurements``) and journaled (lines of ``journal.jsonl``), nothing rejected, no error.
+Clients start calling once the first model exists (~2 s into the stream: the longest debounce);
+their latencies count from then. The run is timed by the shared CLOCK_MONOTONIC: every child
+works from ``t0`` to ``t0 + duration`` and stops by itself.
 
     source scripts/env.sh && python benchmarks/soak.py --duration 600     # ~11 min
     python benchmarks/soak.py --duration 20 --out /tmp/soak                # quick check
+    python benchmarks/soak.py --max-pairs 480 --duration 300    # services only, fixed model
+    python benchmarks/soak.py --node-env OPENBLAS_NUM_THREADS=1  # an environment for the node
 
 Writes ``soak.json`` (raw results), ``soak.md`` (summary, also printed), ``soak.png`` (RSS,
 CPU and latency over time) and ``logs/`` into ``--out``. Exit 0 when every check passed, 1
@@ -63,9 +68,10 @@ def _die_with_parent() -> None:  # runs in the child before exec
     ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
-def spawn(cmd: list[str], log_path: str) -> subprocess.Popen:
+def spawn(cmd: list[str], log_path: str, extra_env: dict | None = None) -> subprocess.Popen:
     with open(log_path, "w") as log:
-        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ),
+        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
+                                env=dict(os.environ, **(extra_env or {})),
                                 preexec_fn=_die_with_parent, cwd=ROOT)
 
 
@@ -178,7 +184,7 @@ def run(args, workdir: str, out: str) -> dict:
     try:
         node = spawn([sys.executable, "-m", "rbc_registration.ros.node", "--ros-args",
                       "-r", f"__node:={name}", "-p", f"state_dir:={state_dir}"],
-                     os.path.join(logs, "node.log"))
+                     os.path.join(logs, "node.log"), node_env(args))
         procs.append(("node", node))
         script = os.path.join(HERE, "soak_procs.py")
         procs.append(("streamer", spawn([sys.executable, script, "streamer", name, workdir,
@@ -273,6 +279,7 @@ def run(args, workdir: str, out: str) -> dict:
                              "think_s": args.think,
                              "call_timeout_s": args.call_timeout, "sample_s": args.sample,
                              "node_parameters": "defaults + state_dir (temporary)",
+                             "node_env": node_env(args),
                              "domain": int(os.environ["ROS_DOMAIN_ID"]), "node_name": name},
                 "machine": soak_report.machine(),
                 "before": _public(before), "samples": [_public(s) for s in samples],
@@ -292,6 +299,17 @@ def run(args, workdir: str, out: str) -> dict:
             stop(proc)
         if watch is not None:
             watch.stop()
+
+
+def node_env(args) -> dict:
+    """``--node-env KEY=VALUE`` options as a dictionary (for the node process only)."""
+    env = {}
+    for item in args.node_env:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--node-env must be KEY=VALUE, got {item!r}")
+        env[key] = value
+    return env
 
 
 def _ticks(pid: int) -> int:
@@ -327,11 +345,18 @@ def main() -> int:
     parser.add_argument("--out", default="soak_out", help="directory for the results")
     parser.add_argument("--domain", type=int, default=os.getpid() % 101 + 1,
                         help="ROS_DOMAIN_ID (default: from this process's id)")
+    parser.add_argument("--node-env", action="append", default=[], metavar="KEY=VALUE",
+                        help="an environment variable for the node process only (repeatable), "
+                             "e.g. OPENBLAS_NUM_THREADS=1")
     parser.add_argument("--progress", action="store_true", help="print a line every minute")
     args = parser.parse_args()
     if not (args.duration > 0 and args.clients >= 1 and args.rate > 0 and args.sample > 0
             and 1 <= args.domain <= 101):
         parser.error("need duration > 0, clients >= 1, rate > 0, sample > 0, 1 <= domain <= 101")
+    try:
+        node_env(args)
+    except ValueError as exc:
+        parser.error(str(exc))
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
     workdir = tempfile.mkdtemp(prefix="rbc_soak_")

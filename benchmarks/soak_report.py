@@ -181,7 +181,9 @@ def markdown(results: dict, summary: dict) -> str:
         f"`~/correct_target` ({think}, timeout {s['call_timeout_s']:g} s), 1 streamer at "
         f"{s['rate']:g} FiducialPair/s"
         f"{' (only the first %d pairs)' % s['max_pairs'] if s.get('max_pairs') else ''}; "
-        f"node with default parameters, journal in a temporary state_dir. Machine: "
+        f"node with default parameters, journal in a temporary state_dir"
+        + "".join(f", {k}={v}" for k, v in s.get("node_env", {}).items())
+        + ". Machine: "
         f"{m['cores']} cores ({m['cpu']}), Python {m['python']}, rclpy {m['rclpy']}, "
         f"{m['rmw']}; code {m.get('git', '?')}.",
         "",
