@@ -49,6 +49,7 @@ sys.path.insert(0, HERE)
 import soak_report  # noqa: E402
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 READY_TIMEOUT = 120.0
 
 
@@ -75,11 +76,15 @@ def spawn(cmd: list[str], log_path: str, extra_env: dict | None = None) -> subpr
                                 preexec_fn=_die_with_parent, cwd=ROOT)
 
 
-def stop(proc: subprocess.Popen, timeout: float = 15.0) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
+def stop(procs: list[subprocess.Popen], timeout: float = 15.0) -> None:
+    """SIGINT to every process still running, then SIGKILL to those not gone after ``timeout``."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    end = time.monotonic() + timeout
+    for proc in procs:
         try:
-            proc.wait(timeout=timeout)
+            proc.wait(timeout=max(0.1, end - time.monotonic()))
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
@@ -117,22 +122,30 @@ class StatusWatch:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.signals import SignalHandlerOptions
 
         from rbc_registration_interfaces.msg import RegistrationStatus
 
         self._rclpy = rclpy
-        rclpy.init()
-        self.node = rclpy.create_node("soak_monitor")
         self.latest = None
         self.received = 0.0
-        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.node.create_subscription(RegistrationStatus, f"/{node_name}/status",
-                                      self._on_status, qos)
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self._thread.start()
+        # Keep this script's SIGINT / SIGTERM handling (stop every child, then exit), and let
+        # only the main thread receive them: the threads of rclpy / DDS, started from here,
+        # inherit the blocked mask, so a signal interrupts the main thread's sleep at once.
+        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+            self.node = rclpy.create_node("soak_monitor")
+            qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.node.create_subscription(RegistrationStatus, f"/{node_name}/status",
+                                          self._on_status, qos)
+            self.executor = SingleThreadedExecutor()
+            self.executor.add_node(self.node)
+            self._thread = threading.Thread(target=self.executor.spin, daemon=True)
+            self._thread.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
 
     def _on_status(self, msg) -> None:
         self.latest, self.received = msg, time.monotonic()
@@ -273,7 +286,7 @@ def run(args, workdir: str, out: str) -> dict:
         time.sleep(1.5)  # more than one status period (1 s): the last status is current
         final = sample(time.monotonic() - t0, last)
         status = watch.latest
-        stop(node)
+        stop([node])
         return {"settings": {"duration_s": args.duration, "clients": args.clients,
                              "rate": args.rate, "max_pairs": args.max_pairs,
                              "think_s": args.think,
@@ -295,8 +308,7 @@ def run(args, workdir: str, out: str) -> dict:
                 "journal": journal_counts(os.path.join(state_dir, "journal.jsonl")),
                 "node_log_bytes": os.path.getsize(os.path.join(logs, "node.log"))}
     finally:
-        for _, proc in reversed(procs):
-            stop(proc)
+        stop([proc for _, proc in reversed(procs)])
         if watch is not None:
             watch.stop()
 
@@ -361,7 +373,10 @@ def main() -> int:
     os.makedirs(out, exist_ok=True)
     workdir = tempfile.mkdtemp(prefix="rbc_soak_")
     set_environment(args.domain, os.path.join(workdir, "ros_log"))
-    signal.signal(signal.SIGTERM, _interrupt)  # e.g. a CI timeout: clean up as on Ctrl-C
+    # Ctrl-C, or SIGTERM (e.g. a CI timeout): stop every child and exit. SIGINT is set too, as a
+    # shell starts background jobs with it ignored.
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         results = run(args, workdir, out)
     except KeyboardInterrupt:

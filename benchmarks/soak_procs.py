@@ -23,6 +23,7 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 import time
 
@@ -80,7 +81,7 @@ def write_json(workdir: str, role: str, data: dict) -> None:
     os.replace(tmp, os.path.join(workdir, f"{role}.json"))
 
 
-def streamer(args, rclpy, node, executor) -> dict:
+def streamer(args, node, executor) -> dict:
     from rclpy._rclpy_pybind11 import RCLError
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -151,7 +152,7 @@ def streamer(args, rclpy, node, executor) -> dict:
             "holes_with_id": sum(bool(i) for i in ids)}
 
 
-def client(args, rclpy, node, executor) -> dict:
+def client(args, node, executor) -> dict:
     from geometry_msgs.msg import PointStamped
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
@@ -242,14 +243,19 @@ def main() -> int:
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init()
+    # SIGINT / SIGTERM (soak.py stopping us) end whatever runs at once, via KeyboardInterrupt.
+    # (Set both: a shell starts background jobs with SIGINT ignored, and children inherit it.)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(f"soak_{role}")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         work = streamer if args.role == "streamer" else client
-        result = work(args, rclpy, node, executor)
+        result = work(args, node, executor)
         write_json(args.workdir, role, result)
         return 0
     except KeyboardInterrupt:
