@@ -10,6 +10,11 @@ import sys
 
 import pytest
 
+# One BLAS thread everywhere, as the node runs (rbc_registration/ros/__init__.py sets it there),
+# set before numpy is imported: tests that compare a subprocess's numbers with in-process ones
+# (kriging's optimiser follows the summation order) then see the same BLAS in both.
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
+
 # Discovery only on this machine, and no static peers that could point elsewhere.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
