@@ -3,16 +3,17 @@
 #   1. a Python 3.11 venv;
 #   2. ROS 2 Kilted from PyPI wheels plus the project's and the tests' dependencies, pinned by
 #      requirements.txt and constraints.txt;
-#   3. msg_docs/rbc_registration_interfaces built with cmake and installed INTO the venv prefix
-#      (libraries in .venv/lib, Python modules in .venv/lib/python3.11/site-packages);
+#   3. the ROS interface packages not on PyPI, each built with cmake and installed INTO the venv
+#      prefix (libraries in .venv/lib, Python modules in .venv/lib/python3.11/site-packages):
+#      vendor/tf2_msgs (ros2/geometry2's tf2_msgs) and msg_docs/rbc_registration_interfaces;
 #   4. `pip install -e .` of rbc_registration.
 # Each step is skipped while a stamp keyed on a hash of its inputs matches, so a second run takes
 # about a second.
 #
 # How the generated typesupport libraries are found: the ROS wheels install
 # ros_wheels_bootstrapper.pth, which re-executes every Python of the venv once (same PID) with
-# LD_LIBRARY_PATH = <venv>/lib + site-packages/ros_*.libs. Installing the interface package with
-# CMAKE_INSTALL_PREFIX=<venv> puts its lib*.so in <venv>/lib, which is on that path.
+# LD_LIBRARY_PATH = <venv>/lib + site-packages/ros_*.libs. Installing the interface packages with
+# CMAKE_INSTALL_PREFIX=<venv> puts their lib*.so in <venv>/lib, which is on that path.
 #
 # Usage: scripts/bootstrap.sh [--freeze]
 #   --freeze  after setting up, rewrite constraints.txt from what is installed in the venv.
@@ -22,14 +23,13 @@ set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="${RBC_VENV:-$ROOT/.venv}"
 PYTHON="${RBC_PYTHON:-python3.11}"
-IFACE_SRC="$ROOT/msg_docs/rbc_registration_interfaces"
 STAMPS="$VENV/.rbc-stamps"
 LOGS="$VENV/.rbc-logs"
 FREEZE=0
 for arg in "$@"; do
   case "$arg" in
     --freeze) FREEZE=1 ;;
-    -h|--help) sed -n '2,19p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,20p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bootstrap: unknown argument: $arg" >&2; exit 2 ;;
   esac
 done
@@ -81,28 +81,49 @@ export PATH="$VENV/bin:$PATH"
 
 SELF_HASH="$(hash_of "python=$PY_VERSION venv=$VENV" "${BASH_SOURCE[0]}")"
 DEPS_HASH="$(hash_of "$SELF_HASH" "$ROOT/requirements.txt" "$ROOT/constraints.txt")"
-IFACE_FILES=("$IFACE_SRC/CMakeLists.txt" "$IFACE_SRC/package.xml")
-while IFS= read -r f; do IFACE_FILES+=("$f"); done < <(
-  find "$IFACE_SRC/msg" "$IFACE_SRC/srv" "$IFACE_SRC/action" -type f \
-    \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \) 2>/dev/null | LC_ALL=C sort)
-IFACE_HASH="$(hash_of "$DEPS_HASH" "$ROOT/scripts/patch_wheel_cmake.sh" "${IFACE_FILES[@]}")"
+# The interface packages built with cmake (step 3), in build order, with the Python import that
+# proves each one installed.
+ROSIDL_PACKAGES=(tf2_msgs rbc_registration_interfaces)
+declare -A ROSIDL_SRC=(
+  [tf2_msgs]="$ROOT/vendor/tf2_msgs"
+  [rbc_registration_interfaces]="$ROOT/msg_docs/rbc_registration_interfaces")
+declare -A ROSIDL_CHECK=(
+  [tf2_msgs]='from tf2_msgs.msg import TFMessage
+from tf2_msgs.action import LookupTransform'
+  [rbc_registration_interfaces]='from rbc_registration_interfaces.msg import FiducialPair
+from rbc_registration_interfaces.srv import CorrectTarget')
+rosidl_hash() {  # rosidl_hash NAME -> hash of the dependencies, the patch script and its files
+  local src="${ROSIDL_SRC[$1]}" files=()
+  files=("$src/CMakeLists.txt" "$src/package.xml")
+  while IFS= read -r f; do files+=("$f"); done < <(
+    find "$src/msg" "$src/srv" "$src/action" -type f \
+      \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \) 2>/dev/null | LC_ALL=C sort)
+  hash_of "$DEPS_HASH $1" "$ROOT/scripts/patch_wheel_cmake.sh" "${files[@]}"
+}
+declare -A ROSIDL_HASH=()
+for pkg in "${ROSIDL_PACKAGES[@]}"; do ROSIDL_HASH[$pkg]="$(rosidl_hash "$pkg")"; done
+rosidl_stamps_ok() {
+  local pkg
+  for pkg in "${ROSIDL_PACKAGES[@]}"; do stamp_ok "rosidl-$pkg" "${ROSIDL_HASH[$pkg]}" || return 1; done
+}
 PROJECT_HASH="$(hash_of "$DEPS_HASH" "$ROOT/setup.py" "$ROOT/setup.cfg" "$ROOT/package.xml")"
 
 check_imports() {
-  "$VPY" -c 'import rclpy, numpy, scipy, rosbags
-from rbc_registration_interfaces.msg import FiducialPair
-from rbc_registration_interfaces.srv import CorrectTarget
+  local pkg
+  for pkg in "${ROSIDL_PACKAGES[@]}"; do
+    "$VPY" -c "${ROSIDL_CHECK[$pkg]}" >/dev/null 2>&1 || return 1
+  done
+  "$VPY" -c 'import rclpy, numpy, scipy, rosbags, yaml
 import rbc_registration' >/dev/null 2>&1 && [ -x "$VENV/bin/rbc-registration" ]
 }
 
-if stamp_ok deps "$DEPS_HASH" && stamp_ok interfaces "$IFACE_HASH" \
-    && stamp_ok project "$PROJECT_HASH" && check_imports; then
+if stamp_ok deps "$DEPS_HASH" && rosidl_stamps_ok && stamp_ok project "$PROJECT_HASH" \
+    && check_imports; then
   say "venv up to date ($VENV)"
   if [ "$FREEZE" = 0 ]; then exit 0; fi
-elif stamp_ok deps "$DEPS_HASH" && stamp_ok interfaces "$IFACE_HASH" \
-    && stamp_ok project "$PROJECT_HASH"; then
+elif stamp_ok deps "$DEPS_HASH" && rosidl_stamps_ok && stamp_ok project "$PROJECT_HASH"; then
   say "venv is stamped up to date but does not import: rebuilding the interfaces and the project"
-  rm -f "$STAMPS/interfaces" "$STAMPS/project"
+  rm -f "$STAMPS"/rosidl-* "$STAMPS/project"
 fi
 
 # --- 2. Python packages ------------------------------------------------------------------------
@@ -114,14 +135,15 @@ if ! stamp_ok deps "$DEPS_HASH"; then
     run_logged pip-setuptools "$VPY" -m pip install 'setuptools>=64,<81'
   fi
   run_logged pip-install "$VPY" -m pip install -r "$ROOT/requirements.txt" -c "$ROOT/constraints.txt"
-  rm -f "$STAMPS/interfaces"  # reinstalled wheels bring back the unpatched cmake files
+  rm -f "$STAMPS"/rosidl-*  # reinstalled wheels bring back the unpatched cmake files
   stamp_set deps "$DEPS_HASH"
   say "  done in $((SECONDS - t0)) s"
 fi
 
-# --- 3. Interface package ----------------------------------------------------------------------
-if ! stamp_ok interfaces "$IFACE_HASH"; then
-  say "building rbc_registration_interfaces with cmake (about 30 s)"; t0=$SECONDS
+# --- 3. Interface packages --------------------------------------------------------------------
+CMAKE_READY=0
+prepare_cmake() {  # once per run: cmake, compilers, the wheels' cmake files patched
+  [ "$CMAKE_READY" = 1 ] && return 0
   if ! command -v cmake >/dev/null 2>&1; then
     say "cmake not found: installing it from PyPI into the venv"
     run_logged pip-cmake "$VPY" -m pip install 'cmake>=3.22,<4'
@@ -131,28 +153,36 @@ if ! stamp_ok interfaces "$IFACE_HASH"; then
   export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV"
   # The wheels' exported cmake targets name the include dirs of the machine that built them.
   run_logged patch-wheel-cmake bash "$ROOT/scripts/patch_wheel_cmake.sh" "$VENV"
+  CMAKE_READY=1
+}
 
-  BUILD="$VENV/build/rbc_registration_interfaces"
-  if [ -f "$BUILD/install_manifest.txt" ]; then  # remove what the previous build installed
-    xargs -d '\n' rm -f <"$BUILD/install_manifest.txt"
+build_rosidl_package() {  # build_rosidl_package NAME: configure, build, install into the venv
+  local pkg="$1" src="${ROSIDL_SRC[$1]}" build="$VENV/build/$1" t0=$SECONDS
+  say "building $pkg with cmake (about 30 s)"
+  prepare_cmake
+  if [ -f "$build/install_manifest.txt" ]; then  # remove what the previous build installed
+    xargs -d '\n' rm -f <"$build/install_manifest.txt"
   fi
-  rm -rf "$BUILD" "$VENV/lib/python3.11/site-packages/rbc_registration_interfaces"
-  mkdir -p "$BUILD"
-  run_logged cmake-configure cmake -S "$IFACE_SRC" -B "$BUILD" \
+  rm -rf "$build" "$VENV/lib/python3.11/site-packages/$pkg"
+  mkdir -p "$build"
+  run_logged "cmake-configure-$pkg" cmake -S "$src" -B "$build" \
     -DCMAKE_BUILD_TYPE=Release \
     -DCMAKE_PREFIX_PATH="$VENV" \
     -DCMAKE_INSTALL_PREFIX="$VENV" \
     -DPython3_EXECUTABLE="$VPY" \
     -DPython3_FIND_VIRTUALENV=ONLY \
     -DBUILD_TESTING=OFF
-  run_logged cmake-build cmake --build "$BUILD" --parallel "$(nproc)"
-  run_logged cmake-install cmake --install "$BUILD"
-  "$VPY" -c 'from rbc_registration_interfaces.msg import FiducialPair
-from rbc_registration_interfaces.srv import CorrectTarget' \
-    || die "rbc_registration_interfaces was built but does not import"
-  stamp_set interfaces "$IFACE_HASH"
+  run_logged "cmake-build-$pkg" cmake --build "$build" --parallel "$(nproc)"
+  run_logged "cmake-install-$pkg" cmake --install "$build"
+  "$VPY" -c "${ROSIDL_CHECK[$pkg]}" || die "$pkg was built but does not import"
+  stamp_set "rosidl-$pkg" "${ROSIDL_HASH[$pkg]}"
   say "  done in $((SECONDS - t0)) s"
-fi
+}
+
+rm -f "$STAMPS/interfaces"  # the stamp of the single interface package of earlier versions
+for pkg in "${ROSIDL_PACKAGES[@]}"; do
+  stamp_ok "rosidl-$pkg" "${ROSIDL_HASH[$pkg]}" || build_rosidl_package "$pkg"
+done
 
 # --- 4. The project, editable ------------------------------------------------------------------
 if ! stamp_ok project "$PROJECT_HASH" || ! check_imports; then
@@ -169,8 +199,8 @@ if ! stamp_ok project "$PROJECT_HASH" || ! check_imports; then
   for item in package.xml launch config; do ln -sfn "$ROOT/$item" "$SHARE/$item"; done
   : >"$VENV/share/ament_index/resource_index/packages/rbc_registration"
   check_imports || {
-    "$VPY" -c 'import rclpy, numpy, scipy, rosbags
-from rbc_registration_interfaces.msg import FiducialPair
+    for pkg in "${ROSIDL_PACKAGES[@]}"; do "$VPY" -c "${ROSIDL_CHECK[$pkg]}" || true; done
+    "$VPY" -c 'import rclpy, numpy, scipy, rosbags, yaml
 import rbc_registration' || true
     die "imports fail after set-up"
   }
