@@ -15,7 +15,7 @@ setup(
         ('share/' + package_name + '/config', glob('config/*.yaml')),
     ],
     python_requires='>=3.10',
-    install_requires=['numpy', 'scipy', 'matplotlib', 'rosbags'],
+    install_requires=['numpy', 'scipy', 'matplotlib', 'rosbags', 'pyyaml'],
     extras_require={'test': ['pytest', 'hypothesis']},
     zip_safe=True,
     maintainer='rbc_registration maintainers',

@@ -1,0 +1,214 @@
+"""The calibration file's fields (docs/CALIBRATION.md): the :class:`Decision` record, the checks
+that name the field they reject, and the mapping to and from the YAML document.
+
+Used by :mod:`rbc_registration.io.calibration`; no rclpy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+import reprlib
+from datetime import datetime
+from typing import Any, Optional, Sequence
+
+FORMAT = "rbc_registration_calibration"
+FORMAT_VERSION = 1
+UNITS = "m"
+MAX_TEXT = 1000  # characters of a frame id, mode, reason or version string
+
+# Keys of the document in file order; nested mappings list their keys.
+VECTOR_KEYS = {"translation": ("x", "y", "z"), "rotation": ("x", "y", "z", "w")}
+DECISION_KEYS = ("mode", "method", "apply", "reason")
+KEYS = ("format", "format_version", "parent_frame", "child_frame", "dimension", "units",
+        "registration", "translation", "rotation", "fre_rms", "decision", "sigma",
+        "sigma_axis", "sigma_L", "expected_tre", "n_fiducials", "created", "package_version")
+
+
+@dataclasses.dataclass(frozen=True)
+class Decision:
+    """Whether and how targets are corrected with this calibration.
+
+    :ivar mode: the decision mode that chose it (e.g. ``auto``, ``on``, ``off``; ``cv``, ``rho``).
+    :ivar method: what a target gets: ``uncorrected``, or a correction by ``paper`` or ``kriging``
+        interpolation (eq. 5-6).
+    :ivar apply: whether corrections are applied (true needs a correcting method).
+    :ivar reason: the reason in words (e.g. ``rho 3.1 >= 2.5``).
+    :raises ValueError: naming the field (``decision.mode`` ...) when a value is not valid.
+    """
+
+    mode: str
+    method: str
+    apply: bool
+    reason: str
+
+    def __post_init__(self) -> None:
+        check_text("decision.mode", self.mode)
+        check_text("decision.method", self.method)
+        if not isinstance(self.apply, bool):
+            raise ValueError(f"decision.apply: must be true or false, got {_quote(self.apply)}")
+        check_text("decision.reason", self.reason, allow_empty=True)
+
+
+_REPR = reprlib.Repr()  # bounded: a YAML alias bomb must not be expanded into a message
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict, _REPR.maxstring, _REPR.maxother = 2, 4, 4, 60, 60
+
+
+def _quote(value: Any) -> str:
+    text = _REPR.repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _name(key: Any) -> str:
+    """A key as it appears in a message: plain when it is a short printable string."""
+    return key if isinstance(key, str) and len(key) <= 60 and key.isprintable() else _quote(key)
+
+
+def check_text(name: str, value: Any, allow_empty: bool = False) -> str:
+    """A one-line string of at most :data:`MAX_TEXT` characters (non-empty unless allowed)."""
+    if not isinstance(value, str):
+        raise ValueError(f"{name}: must be a string, got {_quote(value)}")
+    if not value and not allow_empty:
+        raise ValueError(f"{name}: must not be empty")
+    if len(value) > MAX_TEXT or any(c in value for c in "\n\r\0"):
+        raise ValueError(f"{name}: must be one line of at most {MAX_TEXT} characters, got "
+                         f"{_quote(value)}")
+    return value
+
+
+def check_frame(name: str, value: Any) -> str:
+    """A tf frame id: non-empty, no leading '/' (tf2 refuses it), no whitespace or control
+    characters (so it is one word on a command line)."""
+    check_text(name, value)
+    if value.startswith("/"):
+        raise ValueError(f"{name}: a tf2 frame id must not start with '/', got {_quote(value)}")
+    if any(c.isspace() or not c.isprintable() for c in value):
+        raise ValueError(f"{name}: must not contain whitespace or control characters, got "
+                         f"{_quote(value)}")
+    return value
+
+
+def check_choice(name: str, value: Any, choices: Sequence[str]) -> str:
+    if value not in choices or not isinstance(value, str):
+        raise ValueError(f"{name}: must be one of {', '.join(choices)}, got {_quote(value)}")
+    return value
+
+
+def check_int(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name}: must be an integer, got {_quote(value)}")
+    if value < minimum:
+        raise ValueError(f"{name}: must be at least {minimum}, got {value}")
+    return int(value)
+
+
+def check_number(name: str, value: Any) -> float:
+    """A finite real number (not a bool, not a string)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name}: must be a number, got {_quote(value)}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name}: must be finite, got {value!r}")
+    return float(value)
+
+
+def check_length(name: str, value: Any) -> float:
+    """A finite, non-negative length [m]."""
+    v = check_number(name, value)
+    if v < 0:
+        raise ValueError(f"{name}: must be >= 0 (a length in metres), got {v!r}")
+    return v
+
+
+def sequence(name: str, value: Any) -> tuple[Any, ...]:
+    if isinstance(value, (str, bytes, dict)) or not isinstance(value, Sequence):
+        raise ValueError(f"{name}: must be a list, got {_quote(value)}")
+    return tuple(value)
+
+
+def floats(name: str, value: Any, axes: str) -> tuple[float, ...]:
+    """``len(axes)`` finite numbers, named ``name.<axis>`` in errors."""
+    values = sequence(name, value)
+    if len(values) != len(axes):
+        raise ValueError(f"{name}: must have {len(axes)} components ({', '.join(axes)}), got "
+                         f"{len(values)}")
+    return tuple(check_number(f"{name}.{axis}", v) for axis, v in zip(axes, values))
+
+
+def utc_time(name: str, value: Any) -> str:
+    """An ISO 8601 time in UTC (``Z`` or ``+00:00``); a YAML timestamp is accepted too.
+
+    :return: the text as written (a YAML timestamp: ``YYYY-MM-DDTHH:MM:SS.ffffffZ``).
+    """
+    if isinstance(value, datetime):
+        parsed, text = value, value.isoformat(timespec="microseconds").replace("+00:00", "Z")
+    else:
+        text = check_text(name, value)
+        try:
+            parsed = datetime.fromisoformat(text)
+        except ValueError:
+            raise ValueError(f"{name}: not an ISO 8601 time, got {_quote(text)}") from None
+    offset = parsed.utcoffset()
+    if offset is None or offset.total_seconds() != 0:
+        raise ValueError(f"{name}: must be in UTC (ending in Z or +00:00), got {_quote(text)}")
+    return text
+
+
+def to_mapping(cal: Any) -> dict[str, Any]:
+    """The YAML document of a :class:`~rbc_registration.io.calibration.Calibration`."""
+    data: dict[str, Any] = {"format": FORMAT, "format_version": FORMAT_VERSION, "units": UNITS}
+    for key in KEYS:
+        if key in VECTOR_KEYS:
+            data[key] = dict(zip(VECTOR_KEYS[key], getattr(cal, key)))
+        elif key == "decision":
+            data[key] = dataclasses.asdict(cal.decision)
+        elif key == "sigma_L":
+            data[key] = list(cal.sigma_l)
+        elif key not in data:
+            data[key] = getattr(cal, key)
+    return {key: data[key] for key in KEYS}
+
+
+def _mapping(name: str, value: Any, keys: Sequence[str]) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        what = f"{name}: must be a mapping with keys {', '.join(keys)}" if name else \
+            "the document must be a mapping of the fields of docs/CALIBRATION.md"
+        raise ValueError(f"{what}, got {_quote(value)}")
+    prefix = f"{name}." if name else ""
+    for key in value:
+        if key not in keys:
+            raise ValueError(f"{prefix}{_name(key)}: unknown field (known: {', '.join(keys)})")
+    for key in keys:
+        if key not in value:
+            raise ValueError(f"{prefix}{key}: missing")
+    return value
+
+
+def from_mapping(data: Any) -> dict[str, Any]:
+    """The :class:`~rbc_registration.io.calibration.Calibration` keyword arguments of a parsed
+    document; checks its structure (format, version, units, keys), the record checks values.
+
+    :raises ValueError: naming the field.
+    """
+    if isinstance(data, dict) and data.get("format") != FORMAT:
+        got = "missing" if "format" not in data else f"got {_quote(data['format'])}"
+        raise ValueError(f"format: must be {FORMAT!r} (not a calibration file?), {got}")
+    data = _mapping("", data, KEYS)
+    if check_int("format_version", data["format_version"], minimum=1) != FORMAT_VERSION:
+        raise ValueError(f"format_version: {data['format_version']} is not supported (this "
+                         f"reader knows version {FORMAT_VERSION})")
+    if data["units"] != UNITS:
+        raise ValueError(f"units: must be {UNITS!r} (all lengths are metres), got "
+                         f"{_quote(data['units'])}")
+    kwargs = {key: data[key] for key in KEYS if key not in ("format", "format_version", "units")}
+    for key, axes in VECTOR_KEYS.items():
+        kwargs[key] = tuple(_mapping(key, data[key], axes)[axis] for axis in axes)
+    kwargs["decision"] = Decision(**_mapping("decision", data["decision"], DECISION_KEYS))
+    kwargs["sigma_l"] = kwargs.pop("sigma_L")
+    return kwargs
+
+
+def optional_length(name: str, value: Optional[Any]) -> Optional[float]:
+    """None, or a length as :func:`check_length`."""
+    return None if value is None else check_length(name, value)
+
