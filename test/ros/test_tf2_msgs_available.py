@@ -60,33 +60,20 @@ class TestTFMessageOnLoopback:
     @classmethod
     def setup_class(cls):
         import rclpy
-        from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from ros_helpers import RosHarness
 
         cls.qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        cls.context = rclpy.Context()
-        rclpy.init(context=cls.context)
-        cls.pub_node = rclpy.create_node('tf2_msgs_probe_pub', context=cls.context)
-        cls.sub_node = rclpy.create_node('tf2_msgs_probe_sub', context=cls.context)
-        cls.executor = SingleThreadedExecutor(context=cls.context)
-        cls.executor.add_node(cls.pub_node)
-        cls.executor.add_node(cls.sub_node)
-        cls.spin_thread = threading.Thread(target=cls.executor.spin, daemon=True)
-        cls.spin_thread.start()
+        cls.ros = RosHarness()  # own Context, executor thread; its client node subscribes
+        cls.pub_node = cls.ros.add(rclpy.create_node('tf2_msgs_probe_pub',
+                                                     context=cls.ros.context))
 
     @classmethod
     def teardown_class(cls):
-        import rclpy
-
-        # Stop and join the spinning thread before shutdown, or the process may abort (rc 134).
-        cls.executor.shutdown(timeout_sec=TIMEOUT)
-        cls.spin_thread.join(timeout=TIMEOUT)
-        assert not cls.spin_thread.is_alive()
-        cls.pub_node.destroy_node()
-        cls.sub_node.destroy_node()
-        rclpy.shutdown(context=cls.context)
+        cls.ros.remove(cls.pub_node)
+        cls.ros.stop()  # joins the spin thread before shutting the context down
 
     @staticmethod
     def _transform(parent, child, xyz, quat):
@@ -116,10 +103,10 @@ class TestTFMessageOnLoopback:
             received.append(msg)
             done.set()
 
-        self.sub_node.create_subscription(TFMessage, TOPIC, on_message, self.qos)
+        self.ros.client.create_subscription(TFMessage, TOPIC, on_message, self.qos)
         assert done.wait(TIMEOUT), f'no TFMessage on {TOPIC} within {TIMEOUT} s'
         assert received[0] == sent  # every field, both transforms, in order
 
-        infos = self.sub_node.get_publishers_info_by_topic(TOPIC)
+        infos = self.ros.client.get_publishers_info_by_topic(TOPIC)
         assert [i.topic_type for i in infos] == ['tf2_msgs/msg/TFMessage']
         assert str(infos[0].topic_type_hash) == _upstream_hash('tf2_msgs/msg/TFMessage')
