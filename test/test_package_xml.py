@@ -1,5 +1,5 @@
-"""package.xml: valid, its rosdep keys are the ones docs/BUILD.md lists, and rosdep/colcon crawling
-sees the two packages of this repository and never vendor/tf2_msgs (catkin_pkg: rosdep's crawler)."""
+"""package.xml: valid, its rosdep keys are the ones docs/BUILD.md lists, and crawling (catkin_pkg,
+as rosdep does) sees the two packages of this repository and never vendor/tf2_msgs."""
 
 import os
 import re

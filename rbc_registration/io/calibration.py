@@ -218,7 +218,8 @@ def static_transform_publisher_args(cal: Calibration) -> list[str]:
 
 
 def static_transform_publisher_command(cal: Calibration) -> str:
-    """The shell line ``ros2 run tf2_ros static_transform_publisher --x ... --child-frame-id ...``."""
+    """The shell line ``ros2 run tf2_ros static_transform_publisher --x ... --child-frame-id ...``
+    (frames shell-quoted where needed)."""
     return shlex.join(["ros2", "run", "tf2_ros", "static_transform_publisher",
                        *static_transform_publisher_args(cal)])
 
