@@ -3,14 +3,25 @@
 Modules: :mod:`registration` (rigid fit), :mod:`mismatch` (L, sigma_L), :mod:`restoration`
 (RBC restoration, eq. 4), :mod:`noise` (sigma, rho), :mod:`interpolation` and :mod:`kriging`
 (eq. 5-6), :mod:`model` (everything together), :mod:`evaluation` (TRE, leave-one-out),
-:mod:`synthetic` (cells modelled on the paper's experiments).
+:mod:`synthetic` (cells modelled on the paper's experiments), :mod:`constants` (the closed sets
+and shared rules, numpy-free).
+
+The names below are loaded on first use, so importing :mod:`.constants` alone (as the
+command-line parser does) does not load numpy or scipy.
 """
 
-from .evaluation import TargetErrors, leave_one_out, target_errors
-from .model import ModelConfig, RbcModel, TargetCorrections, build_model
-from .registration import Registration, rigid_fit
-from .restoration import RestorationResult, restore_rigid_body
+from importlib import import_module
 
-__all__ = ["ModelConfig", "RbcModel", "Registration", "RestorationResult", "TargetCorrections",
-           "TargetErrors", "build_model", "leave_one_out", "restore_rigid_body", "rigid_fit",
-           "target_errors"]
+_EXPORTS = {"TargetErrors": "evaluation", "leave_one_out": "evaluation",
+            "target_errors": "evaluation", "ModelConfig": "model", "RbcModel": "model",
+            "TargetCorrections": "model", "build_model": "model", "Registration": "registration",
+            "rigid_fit": "registration", "RestorationResult": "restoration",
+            "restore_rigid_body": "restoration"}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    if name in _EXPORTS:
+        return getattr(import_module(f".{_EXPORTS[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

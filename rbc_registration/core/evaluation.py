@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .model import ModelConfig, RbcModel, build_model
+from .model import RbcModel, build_model
 from .validation import as_point_pairs
 
 
@@ -49,10 +50,9 @@ def leave_one_out(model: RbcModel) -> TargetErrors:
     """
     x, y = model.working, model.destination
     j = len(x)
-    cfg = ModelConfig(**{**model.config.__dict__, "uncorrected_subset": None,
-                         "corrected_subset": None})
+    cfg = replace(model.config, uncorrected_subset=None, corrected_subset=None)
     if cfg.sigma is None and model.sigma:
-        cfg = ModelConfig(**{**cfg.__dict__, "sigma": model.sigma})
+        cfg = replace(cfg, sigma=model.sigma)
     tre_u = np.empty(j)
     tre_c = np.empty(j)
     for k in range(j):

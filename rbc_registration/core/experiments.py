@@ -8,7 +8,7 @@ each dataset processed on its own (a single measurement of every fiducial and ta
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Optional
 
 import numpy as np
@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 
 from .evaluation import TargetErrors, target_errors
 from .mismatch import pairwise_mismatch
-from .model import INTERPOLATIONS, ModelConfig, RbcModel, build_model
+from .constants import INTERPOLATIONS
+from .model import ModelConfig, RbcModel, build_model
 from .synthetic import SyntheticCell
 
 
@@ -51,7 +52,7 @@ def _instantaneous(cell: SyntheticCell, config: ModelConfig, sigma: Optional[flo
         x = np.array([m[n] for m in cell.fiducial_measurements])
         t = np.array([m[n] for m in cell.target_measurements])
         for method in INTERPOLATIONS:
-            cfg = ModelConfig(**{**config.__dict__, "interpolation": method, "sigma": sigma})
+            cfg = replace(config, interpolation=method, sigma=sigma)
             model = build_model(x, cell.fiducial_truth, cfg)
             err = target_errors(model, t, cell.target_truth)
             tre[method][0][n], tre[method][1][n] = err.tre_u, err.tre_c
@@ -76,13 +77,13 @@ def run_cell(cell: SyntheticCell, config: Optional[ModelConfig] = None,
     :param progress: called with a progress line now and then.
     """
     base = config or ModelConfig()
-    base = ModelConfig(**{**base.__dict__, "dimension": cell.spec.dimension})
+    base = replace(base, dimension=cell.spec.dimension)
     x = cell.fiducial_means
     y = cell.fiducial_truth
     results: dict[str, InterpolationResult] = {}
     models = {}
     for method in INTERPOLATIONS:
-        cfg = ModelConfig(**{**base.__dict__, "interpolation": method})
+        cfg = replace(base, interpolation=method)
         models[method] = build_model(x, y, cfg, ids=cell.fiducial_ids,
                                      working_repeats=cell.fiducial_measurements)
     model = models["paper"]
@@ -96,7 +97,7 @@ def run_cell(cell: SyntheticCell, config: Optional[ModelConfig] = None,
     if n_sets:
         # Common bin edges per stage, wide enough for the noisy instantaneous datasets.
         probe = np.array([m[0] for m in cell.fiducial_measurements])
-        probe_model = build_model(probe, y, ModelConfig(**{**base.__dict__, "interpolation": "paper"}))
+        probe_model = build_model(probe, y, replace(base, interpolation="paper"))
         for s, pts in enumerate(probe_model.restoration.stages(probe)):
             lim = 1.5 * max(np.abs(pairwise_mismatch(pts, y)).max(), np.abs(mismatch[s]).max())
             edges.append(np.linspace(-lim, lim, bins + 1))

@@ -18,6 +18,7 @@ from typing import NamedTuple, Optional, Sequence, Union
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .constants import INTERPOLATIONS, check_rho_thresholds
 from .interpolation import PaperInterpolator
 from .kriging import KrigingHyperparameters, KrigingInterpolator
 from .noise import RepeatStats, assess, repeat_stats, sigma_from_stats
@@ -25,7 +26,6 @@ from .registration import Registration, rigid_fit
 from .restoration import METHODS, RestorationResult, restore_rigid_body
 from .validation import as_point_pairs, as_points, check_subset
 
-INTERPOLATIONS = ("paper", "kriging")
 Interpolator = Union[PaperInterpolator, KrigingInterpolator]
 
 
@@ -72,9 +72,7 @@ class ModelConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
-        if self.rho_reject > self.rho_apply:
-            raise ValueError(f"rho_reject ({self.rho_reject}) must not exceed rho_apply "
-                             f"({self.rho_apply})")
+        check_rho_thresholds(self.rho_reject, self.rho_apply)
 
 
 class TargetCorrections(NamedTuple):

@@ -8,9 +8,8 @@ from typing import NamedTuple, Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .constants import check_rho_thresholds
 from .validation import as_points
-
-RECOMMENDATIONS = ("apply", "uncertain", "do_not_apply", "unknown")
 
 
 class RepeatStats(NamedTuple):
@@ -90,8 +89,7 @@ def assess(sigma_l0: float, sigma: Optional[float], rho_reject: float = 1.0,
         raise ValueError(f"sigma_L0 must be finite and >= 0, got {sigma_l0}")
     if not (math.isfinite(rho_reject) and math.isfinite(rho_apply)) or rho_reject < 0:
         raise ValueError(f"rho thresholds must be finite and >= 0, got {rho_reject}, {rho_apply}")
-    if rho_reject > rho_apply:
-        raise ValueError(f"rho_reject ({rho_reject}) must not exceed rho_apply ({rho_apply})")
+    check_rho_thresholds(rho_reject, rho_apply)
     if sigma is None:
         return Assessment(None, "unknown")
     if not math.isfinite(sigma) or sigma < 0:

@@ -20,8 +20,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-WORKING = "working"
-DESTINATION = "destination"
+from .constants import DESTINATION, WORKING
+
 _OTHER = {WORKING: DESTINATION, DESTINATION: WORKING}
 
 

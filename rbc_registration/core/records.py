@@ -11,10 +11,9 @@ from typing import Any, Union
 import numpy as np
 from numpy.typing import NDArray
 
+from .constants import REJECT_REASONS
 from .noise import RepeatStats
 
-#: Reasons a measurement is rejected (the counters of ``FiducialAccumulator.rejected``).
-REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed", "stale")
 
 #: Longest text of a rejected value quoted in an error message (a 1 MB id is not logged whole).
 QUOTE_LIMIT = 60

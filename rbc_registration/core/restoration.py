@@ -28,11 +28,11 @@ import scipy.linalg
 import scipy.sparse.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from .constants import RESTORATIONS as METHODS
 from .mismatch import sigma_l
 from .registration import rigid_fit
 from .validation import as_point_pairs, check_spread
 
-METHODS = ("iterative", "closed-form")
 SOLVERS = ("auto", "direct", "cg")
 #: The assembled normal matrix is (dJ)^2 floats: beyond this many fiducials only CG is used.
 DIRECT_MAX_FIDUCIALS = 3000

@@ -22,9 +22,8 @@ from typing import Optional
 import numpy as np
 from numpy.typing import NDArray
 
+from .constants import CELLS
 from .mismatch import sigma_l
-
-CELLS = ("A", "B", "RA")
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,8 @@ def test_subsets_as_in_the_paper(ra):
     pytest.param({"sigma": 0.0}, "sigma must be a positive finite length or None, got 0.0",
                  id="zero-sigma"),
     pytest.param({"sigma": float("nan")}, "sigma", id="nan-sigma"),
-    pytest.param({"rho_reject": 3.0}, "exceed", id="rho-order"),
+    pytest.param({"rho_reject": 3.0}, r"rho_reject \(3\) must be <= rho_apply \(2.5\)",
+                 id="rho-order"),
     pytest.param({"rho_apply": -1.0}, "rho_apply", id="negative-rho")])
 def test_config_validation(kwargs, message):
     with pytest.raises(ValueError, match=message):

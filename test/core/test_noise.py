@@ -35,7 +35,8 @@ def test_rule(sigma_l0, sigma, rec):
 
 
 @pytest.mark.parametrize("args, message", [
-    ((1.0, -1.0), "sigma"), ((math.nan, 1.0), "sigma_L0"), ((1.0, 1.0, 3.0, 2.0), "exceed"),
+    ((1.0, -1.0), "sigma"), ((math.nan, 1.0), "sigma_L0"),
+    ((1.0, 1.0, 3.0, 2.0), r"rho_reject \(3\) must be <= rho_apply \(2\)"),
     ((1.0, math.inf), "sigma")])
 def test_rule_validation(args, message):
     with pytest.raises(ValueError, match=message):

@@ -1,0 +1,46 @@
+"""The closed sets and shared rules of the method, defined once and imported wherever needed
+(core, pipeline, io, ros, cli). Plain Python: importing this module loads neither numpy nor
+scipy, so the command-line parser can take its choices from here and stay fast.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+#: Dimensions a registration can have: 2 (x, y as in the paper) or 3.
+DIMENSIONS = (2, 3)
+#: How the rigid-body condition is restored (eq. 4): the paper's Gauss-Newton steps or the exact
+#: minimum-norm solution.
+RESTORATIONS = ("iterative", "closed-form")
+#: How fiducial corrections are interpolated at a target (eq. 5).
+INTERPOLATIONS = ("paper", "kriging")
+#: Outcomes of the rho rule (paper section 6), see :func:`rbc_registration.core.noise.assess`.
+RECOMMENDATIONS = ("apply", "uncertain", "do_not_apply", "unknown")
+#: Where sigma came from: given by the user, estimated from repeats, or unknown.
+SIGMA_SOURCES = ("given", "repeats", "unknown")
+#: Reasons a measurement is rejected (the counters of ``FiducialAccumulator.rejected``).
+REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed", "stale")
+#: The two point streams of the node (``~/working_point``, ``~/destination_point``), paired by
+#: stamp (:mod:`.pairing`).
+WORKING, DESTINATION = "working", "destination"
+#: The synthetic cells modelled on the paper's experiments (:mod:`.synthetic`).
+CELLS = ("A", "B", "RA")
+
+#: Metres per millimetre (the synthetic cells are in mm; ROS and bags are in metres).
+M_PER_MM = 1e-3
+#: Millimetres per metre (figures and Markdown reports of metre data show mm).
+MM_PER_M = 1e3
+
+
+def rho_thresholds_error(rho_reject: float, rho_apply: float) -> Optional[str]:
+    """Why the rho thresholds are not in order (``rho_reject <= rho_apply``), or ``None``."""
+    if rho_reject > rho_apply:
+        return f"rho_reject ({rho_reject:g}) must be <= rho_apply ({rho_apply:g})"
+    return None
+
+
+def check_rho_thresholds(rho_reject: float, rho_apply: float) -> None:
+    """:raises ValueError: when ``rho_reject > rho_apply`` (:func:`rho_thresholds_error`)."""
+    error = rho_thresholds_error(rho_reject, rho_apply)
+    if error:
+        raise ValueError(error)
