@@ -13,6 +13,8 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
+        # bag reading without ROS needs the interface definitions (io/bag/typestore.py)
+        ('share/' + package_name + '/msg', glob('msg_docs/rbc_registration_interfaces/msg/*.msg')),
     ],
     python_requires='>=3.10',
     install_requires=['numpy', 'scipy', 'matplotlib', 'rosbags', 'pyyaml'],

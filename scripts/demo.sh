@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The first thing to run: set up the venv (scripts/bootstrap.sh; idempotent, ~1 s when warm), then
-# the demo (rbc_registration/demo.py): a synthetic RA-like robot cell is written as a bag,
+# the demo (rbc_registration/ros/demo.py): a synthetic RA-like robot cell is written as a bag,
 # replayed into a live registration_node, all targets are corrected through ~/correct_targets,
 # TRE uncorrected vs corrected and the rho decision are printed, and `rbc-registration evaluate`
 # writes the report directory. The node is always stopped (also on Ctrl-C).
@@ -23,6 +23,6 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 unset ROS_STATIC_PEERS
 echo "demo: ROS_DOMAIN_ID=$ROS_DOMAIN_ID, discovery on localhost only"
 status=0
-"$RBC_VENV/bin/python" -m rbc_registration.demo "$@" || status=$?
+"$RBC_VENV/bin/python" -m rbc_registration.ros.demo "$@" || status=$?
 echo "demo: finished in $(( $(date +%s) - START )) s (exit $status)"
 exit $status

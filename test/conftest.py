@@ -10,9 +10,9 @@ import sys
 
 import pytest
 
-# One BLAS thread everywhere, as the node runs (rbc_registration/ros/__init__.py sets it there),
-# set before numpy is imported: tests that compare a subprocess's numbers with in-process ones
-# (kriging's optimiser follows the summation order) then see the same BLAS in both.
+# One BLAS thread everywhere, as the console scripts run (rbc_registration/runtime.py sets it
+# there), set before numpy is imported: tests that compare a subprocess's numbers with in-process
+# ones (kriging's optimiser follows the summation order) then see the same BLAS in both.
 os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 # Discovery only on this machine, and no static peers that could point elsewhere.

@@ -17,7 +17,9 @@ from typing import Optional, Union
 import numpy as np
 from numpy.typing import NDArray
 
+from ..core.constants import DIMENSIONS
 from ..core.validation import MAX_ABS_COORDINATE
+from ..pipeline.targets import mean_by_id
 
 PathLike = Union[str, Path]
 #: Repeats of one id whose destination points differ by more than this fraction of the smallest
@@ -105,7 +107,7 @@ def _dimension(p: PathLike, header: list[str], prefixes: list[str], dim: Optiona
             cols = ", ".join(f"{pre}z" for pre, h in zip(prefixes, has_z) if not h)
             raise CsvError(f"{p}: mixed 2D/3D columns: missing {cols}")
         return 3 if all(has_z) else 2
-    if dim not in (2, 3):
+    if dim not in DIMENSIONS:
         raise CsvError(f"dimension must be 2 or 3, got {dim}")
     if dim == 3 and not all(has_z):
         raise CsvError(f"{p}: --dim 3 needs columns " + ", ".join(f"{pre}z" for pre in prefixes))
@@ -170,20 +172,17 @@ def read_targets(path: PathLike, dim: int) -> TargetTable:
     if partial and not has_truth:
         raise CsvError(f"{path}: truth columns incomplete: has {', '.join(partial)}, needs "
                        + ", ".join(f"d{a}" for a in axes))
-    groups: dict[str, tuple[list, list]] = {}
+    tids, work, truth = [], [], []
     for line, row in enumerate(rows, start=2):
         tid = row.get("id") or ""
         if not tid:
             raise CsvError(f"{path}: row {line}: column id is empty")
-        w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
-        t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes] if has_truth else []
-        groups.setdefault(tid, ([], []))
-        groups[tid][0].append(w)
-        groups[tid][1].append(t)
-    ids = tuple(groups)
-    work = np.array([np.mean(g[0], axis=0) for g in groups.values()])
-    truth = np.array([np.mean(g[1], axis=0) for g in groups.values()]) if has_truth else None
-    return TargetTable(ids, work, truth)
+        tids.append(tid)
+        work.append([_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes])
+        if has_truth:
+            truth.append([_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes])
+    ids, means = mean_by_id(tids, work, *([truth] if has_truth else []))
+    return TargetTable(ids, means[0], means[1] if has_truth else None)
 
 
 def write_fiducials(path: PathLike, ids, working_repeats, destination_repeats) -> None:

@@ -1,7 +1,7 @@
-"""Offline evaluation of a recorded cell: a bag's fiducial pairs go through the node's own
-ingestion (:class:`~rbc_registration.ros.ingest.Ingest`: stamp pairing, validation, id
-assignment, outlier rejection, the shared ``FiducialAccumulator``) and model builder
-(:func:`~rbc_registration.ros.worker.build_state`), then the report of ``register``.
+"""The report of an offline evaluation of a recorded bag: the pipeline's model
+(:func:`rbc_registration.pipeline.offline.evaluate_inputs`, the node's own ingestion and model
+builder) with the report of ``register`` plus what the bag held, its text summary, and the
+report directory (``report.json``, ``report.md``, PNG figures).
 
 No rclpy: nothing here starts a ROS graph. Lengths in metres as in the bag (REP 103); figures and
 the Markdown report show millimetres.
@@ -11,34 +11,21 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Callable, Mapping, NamedTuple, Optional
+from typing import Any, Callable, NamedTuple, Optional
 
 import numpy as np
-from numpy.typing import NDArray
 
-from .core.accumulator import FiducialAccumulator, FiducialSet
-from .core.evaluation import leave_one_out, target_errors
-from .core.mismatch import pairwise_mismatch
-from .core.model import RbcModel
-from .core.pairing import StampPairer
-from .io import figures
-from .io.bag import BagContents, BagError, PairMessage, PointMessage
-from .io.report import format_report, model_report, write_json
-from .ros.conversions import PairArgs
-from .ros.ingest import Ingest
-from .ros.params import Settings
-from .ros.worker import build_state
-
-MM = 1000.0  # metres -> millimetres for figures and the Markdown report
-
-
-class Targets(NamedTuple):
-    """Targets (metres): ids, working-frame points (K, d), truth (K, d) or ``None``."""
-
-    ids: tuple[str, ...]
-    working: NDArray[np.float64]
-    destination: Optional[NDArray[np.float64]]
-    source: str
+from ..core.accumulator import FiducialSet
+from ..core.constants import MM_PER_M as MM
+from ..core.evaluation import leave_one_out, target_errors
+from ..core.mismatch import pairwise_mismatch
+from ..core.model import RbcModel
+from ..pipeline.offline import evaluate_inputs
+from ..pipeline.settings import Settings
+from ..pipeline.targets import Targets
+from . import figures
+from .bag.records import BagContents
+from .report import format_report, model_report, write_json
 
 
 class Evaluation(NamedTuple):
@@ -53,119 +40,26 @@ class Evaluation(NamedTuple):
     notes: tuple[str, ...]
 
 
-class _Log:
-    """Collects what the node would log (rejections) instead of printing every line."""
-
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def warning(self, text: str) -> None:
-        self.lines.append(text)
-
-    error = info = warning
-
-
-def infer_dimension(contents: BagContents) -> tuple[int, str]:
-    """2 when every z coordinate of the bag's inputs and targets is exactly 0, else 3.
-
-    :return: the dimension and a sentence saying why.
-    """
-    zs = []
-    for m in contents.inputs + contents.targets:
-        if isinstance(m, PointMessage):
-            zs.append(m.xyz[2])
-        else:
-            zs += [m.working[2], m.destination[2]]
-    zs = [z for z in zs if not math.isnan(z)]
-    if zs and all(z == 0.0 for z in zs):
-        return 2, "dimension 2: every z in the bag is 0 (--dim 3 to override)"
-    return 3, "dimension 3: the bag has non-zero z (--dim 2 to register x, y only)"
-
-
-def settings_for(dimension: int, overrides: Mapping[str, Any]) -> Settings:
-    """The node's parameters (defaults) with ``dimension`` and ``overrides`` applied.
-
-    :raises ValueError: naming an unknown or invalid parameter.
-    """
-    return Settings.from_mapping({**overrides, "dimension": dimension})
-
-
-def accumulate(contents: BagContents, settings: Settings) -> tuple[FiducialSet, dict[str, int],
-                                                                   list[str]]:
-    """Feed the bag's inputs, in bag order, through the node's ingestion.
-
-    :return: the fiducial set, rejections by reason, and the log lines of the rejections.
-    """
-    s = settings
-    acc = FiducialAccumulator(s.dimension, s.working_frame, s.destination_frame, s.merge_radius,
-                              s.outlier_distance)
-    log = _Log()
-    ingest = Ingest(acc, StampPairer(s.pair_slop, s.point_buffer), None, log)
-    for m in contents.inputs:
-        if isinstance(m, PairMessage):
-            ingest.measurement(PairArgs(m.fiducial_id or None, m.working, m.destination,
-                                        m.working_frame, m.destination_frame, m.stamp_s))
-        else:
-            ingest.point(m.stream, m.xyz, m.frame_id, m.stamp_s)
-    return ingest.fiducial_set(), dict(acc.rejected), log.lines
-
-
-def bag_targets(contents: BagContents, settings: Settings) -> Optional[Targets]:
-    """Targets from the bag's targets topic, repeats of an id averaged (first-seen order); truth
-    only when every target has a finite destination point.
-
-    :raises BagError: for a target in another frame than the node's.
-    """
-    if not contents.targets:
-        return None
-    d = settings.dimension
-    groups: dict[str, tuple[list, list]] = {}
-    for k, m in enumerate(contents.targets):
-        for name, got, want in (("working", m.working_frame, settings.working_frame),
-                                ("destination", m.destination_frame, settings.destination_frame)):
-            if got and got != want:
-                raise BagError(f"target {m.fiducial_id or k!r}: {name} frame {got!r}, expected "
-                               f"{want!r}")
-        tid = m.fiducial_id or f"target-{k}"
-        groups.setdefault(tid, ([], []))
-        groups[tid][0].append(m.working[:d])
-        groups[tid][1].append(m.destination[:d])
-    ids = tuple(groups)
-    working = np.array([np.mean(g[0], axis=0) for g in groups.values()])
-    if not np.all(np.isfinite(working)):
-        raise BagError("a target's working point has NaN or inf")
-    truth = np.array([np.mean(g[1], axis=0) for g in groups.values()])
-    return Targets(ids, working, truth if np.all(np.isfinite(truth)) else None, "bag")
-
-
 def evaluate_contents(contents: BagContents, settings: Settings,
                       targets: Optional[Targets] = None, loo: bool = False) -> Evaluation:
     """Accumulate, build the node's model and make the report (lengths in metres).
 
     :param targets: targets to report (default: the bag's targets topic, if any).
-    :raises BagError: when no model can be built (too few fiducials, degenerate geometry).
+    :raises rbc_registration.pipeline.offline.EvaluationError: when no model can be built (too
+        few fiducials, degenerate geometry) or the bag's targets cannot be used.
     """
-    fiducials, rejected, log_lines = accumulate(contents, settings)
-    state = build_state(fiducials, settings, 0)
-    if state.model is None:
-        raise BagError(f"{contents.path}: no model: {state.error}"
-                       + (f" ({sum(rejected.values())} measurement(s) rejected, e.g. "
-                          f"{log_lines[0]})" if log_lines else ""))
-    model = state.model
-    notes = []
-    if targets is None:
-        targets = bag_targets(contents, settings)
-    if targets is not None and targets.destination is None:
-        notes.append("targets have no truth: TRE not computed")
-    loo_err = leave_one_out(model) if loo else None
-    report = model_report(model, targets.ids if targets else (),
+    ev = evaluate_inputs(contents.inputs, settings, contents.targets, targets,
+                         source=str(contents.path))
+    targets = ev.targets
+    loo_err = leave_one_out(ev.model) if loo else None
+    report = model_report(ev.model, targets.ids if targets else (),
                           targets.working if targets else None,
                           targets.destination if targets else None, loo_err, "m")
     report["bag"] = {"path": str(contents.path), "messages": dict(contents.counts),
-                     "rejected": rejected, "disabled": list(fiducials.disabled_ids),
+                     "rejected": ev.rejected, "disabled": list(ev.fiducials.disabled_ids),
                      "targets_source": targets.source if targets else None,
                      "other_topics": dict(contents.other_topics)}
-    return Evaluation(model, fiducials, settings, targets, report, rejected, tuple(notes))
+    return Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected, ev.notes)
 
 
 # -- report directory --------------------------------------------------------------------------

@@ -1,4 +1,9 @@
-"""Figures of the paper's kind (Figs 2-5) and a fiducial map, as PNG (matplotlib, Agg)."""
+"""Figures of the paper's kind (Figs 2-5) and a fiducial map, as PNG.
+
+Drawn on :class:`matplotlib.figure.Figure` objects directly (no pyplot, no global backend
+selected on import): a figure is rendered to PNG by ``savefig`` alone, so importing this module
+changes nothing for an application that uses matplotlib itself.
+"""
 
 from __future__ import annotations
 
@@ -8,10 +13,7 @@ from typing import Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.figure import Figure
 
 STAGE_TITLES = ("original", "after step 1", "after step 2", "after step 3")
 
@@ -27,7 +29,8 @@ def mismatch_histograms(path: Path, stages: Sequence[NDArray[np.float64]],
         upper count per bin are drawn as solid and dashed lines (Fig. 2, lines B and C).
     """
     n = len(stages)
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.4), squeeze=False)
+    fig = Figure(figsize=(4.2 * n, 3.4))
+    axes = fig.subplots(1, n, squeeze=False)
     for s, (ax, vals, e) in enumerate(zip(axes[0], stages, edges)):
         ax.hist(vals, bins=e, color="0.7", label="averaged" if envelopes is not None else "L")
         if envelopes is not None:
@@ -51,7 +54,8 @@ def tre_per_target(path: Path, ids: Sequence[str], series: dict[str, ArrayLike],
                    unit: str) -> Path:
     """TRE per target for several methods (Figs 4 and 5a)."""
     k = np.arange(1, len(ids) + 1)
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.12 * len(ids) + 3), 3.6))
+    fig = Figure(figsize=(max(6.0, 0.12 * len(ids) + 3), 3.6))
+    ax = fig.subplots()
     markers = ["o", "s", "^", "v", "D"]
     for (label, values), m in zip(series.items(), markers):
         ax.plot(k, np.asarray(values), m + "-", ms=4, lw=0.8, label=label)
@@ -68,7 +72,8 @@ def delta_tre(path: Path, ids: Sequence[str], delta: ArrayLike, title: str, unit
     """Delta TRE = TRE_c - TRE_u per target (Fig. 5b); below zero is an improvement."""
     d = np.asarray(delta, dtype=float)
     k = np.arange(1, len(d) + 1)
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.12 * len(d) + 3), 3.2))
+    fig = Figure(figsize=(max(6.0, 0.12 * len(d) + 3), 3.2))
+    ax = fig.subplots()
     ax.bar(k, d, color=np.where(d < 0, "tab:green", "tab:red"))
     ax.axhline(0, color="k", lw=0.8)
     ax.set_xlabel("target k")
@@ -86,7 +91,8 @@ def fiducial_map(path: Path, working: ArrayLike, corrections: ArrayLike, unit: s
     span = float(np.ptp(x[:, :2], axis=0).max()) or 1.0
     longest = float(np.linalg.norm(eps[:, :2], axis=1).max()) or 1.0
     scale = 0.08 * span / longest
-    fig, ax = plt.subplots(figsize=(6, 5.5))
+    fig = Figure(figsize=(6, 5.5))
+    ax = fig.subplots()
     ax.plot(x[:, 0], x[:, 1], "k.", ms=4, label="fiducials")
     ax.quiver(x[:, 0], x[:, 1], -eps[:, 0] * scale, -eps[:, 1] * scale, angles="xy",
               scale_units="xy", scale=1, color="tab:blue", width=0.003,
@@ -103,9 +109,8 @@ def fiducial_map(path: Path, working: ArrayLike, corrections: ArrayLike, unit: s
     return _save(fig, path)
 
 
-def _save(fig, path: Path) -> Path:
+def _save(fig: Figure, path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

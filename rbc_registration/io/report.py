@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
@@ -12,24 +11,9 @@ from numpy.typing import ArrayLike
 
 from ..core.evaluation import TargetErrors, target_errors
 from ..core.model import RbcModel
-from ..core.registration import Registration
-
-
-def _num(v: Any) -> Any:
-    """JSON-safe number: NaN/inf/None become null."""
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
-def _vec(a: ArrayLike) -> list:
-    return [_num(v) for v in np.asarray(a, dtype=float).ravel()]
-
-
-def _registration(r: Registration) -> dict[str, Any]:
-    return {"rotation": [_vec(row) for row in r.rotation], "translation": _vec(r.translation),
-            "fre_rms": _num(r.fre_rms)}
+from ..pipeline.jsonable import json_number as _num
+from ..pipeline.jsonable import json_vector as _vec
+from ..pipeline.jsonable import registration_json
 
 
 def _summary(err: Optional[TargetErrors]) -> dict[str, Any]:
@@ -57,8 +41,8 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
         "sigma_L": [_num(v) for v in model.sigma_l],
         "rho": _num(model.rho),
         "recommendation": model.recommendation,
-        "uncorrected": _registration(model.uncorrected),
-        "corrected": _registration(model.corrected),
+        "uncorrected": registration_json(model.uncorrected),
+        "corrected": registration_json(model.corrected),
         "fiducials": [{"id": fid, "correction": _vec(eps), "n": int(n)}
                       for fid, eps, n in zip(model.ids, model.corrections, model.counts)],
         "targets": [],

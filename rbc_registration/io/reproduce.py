@@ -12,10 +12,11 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from .core.experiments import CellResult, run_cell
-from .core.model import INTERPOLATIONS, ModelConfig
-from .core.synthetic import CELLS, make_cell
-from .io import figures
+from ..core.constants import CELLS, INTERPOLATIONS
+from ..core.experiments import CellResult, run_cell
+from ..core.model import ModelConfig
+from ..core.synthetic import make_cell
+from . import figures
 
 
 def findings(results: dict[str, CellResult]) -> list[dict[str, Any]]:
@@ -88,7 +89,8 @@ def _cell_json(r: CellResult) -> dict[str, Any]:
 
 def table(results: dict[str, CellResult]) -> str:
     """Table 1 analogue plus TRE medians, as Markdown."""
-    rows = ["| cell | sigma [mm] | sigma_L0 [mm] | rho | sigma_L1 [mm] | sigma_L2 [mm] | decision |",
+    rows = ["| cell | sigma [mm] | sigma_L0 [mm] | rho | sigma_L1 [mm] | sigma_L2 [mm] "
+            "| decision |",
             "|---|---|---|---|---|---|---|"]
     for cell, r in results.items():
         m = r.model

@@ -1,25 +1,46 @@
-"""Thread-safe ingestion for ``registration_node``: pairing, validation (the shared
-:class:`~rbc_registration.core.accumulator.FiducialAccumulator`), journaling before a
-measurement counts, rejection logging. No rclpy: the node passes its logger in.
+"""Thread-safe ingestion, shared by ``registration_node`` and offline ``evaluate``: pairing,
+validation (the shared :class:`~rbc_registration.core.accumulator.FiducialAccumulator`),
+journaling before a measurement counts, rejection logging, and the counters the node reports.
+No rclpy, no message packages: the node converts messages to :class:`PairArgs` and passes its
+logger in.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Mapping, NamedTuple, Optional, Sequence
 
-from rbc_registration.core.accumulator import (FiducialAccumulator, FiducialSet, Measurement,
-                                               Record, RejectedMeasurement)
-from rbc_registration.core.pairing import StampPairer
-
-from .conversions import PairArgs
-from .params import Settings
-from .persistence import Journal
-from .reports import Counters
+from ..core.accumulator import (FiducialAccumulator, FiducialSet, Measurement, Record,
+                                RejectedMeasurement)
+from ..core.pairing import StampPairer
+from .journal import Journal
+from .settings import Settings
 
 #: Every rejection of a reason is logged up to this count, then at most once per second.
 LOG_EVERY_UP_TO = 20
+
+
+class PairArgs(NamedTuple):
+    """A fiducial pair as the arguments of ``FiducialAccumulator.prepare`` (points (3,)):
+    ``fiducial_id`` ``None`` means "assign by proximity"; stamp in seconds."""
+
+    fiducial_id: Optional[str]
+    working_xyz: Sequence[float]
+    destination_xyz: Sequence[float]
+    working_frame: str
+    destination_frame: str
+    stamp_s: float
+
+
+class Counters(NamedTuple):
+    """Accumulator counters at one moment (read under the ingestion lock)."""
+
+    n_measurements: int
+    rejected: Mapping[str, int]
+    n_disabled: int
+    n_journal_failures: int = 0
+    journal_error: str = ""
 
 
 class Ingest:
@@ -31,16 +52,19 @@ class Ingest:
     :param logger: an rclpy-style logger (``warning``, ``error``, ``info``).
     :param clock: the time now [s] (the node clock) for the accumulator's ``max_stamp_age``
         check; ``None``: stamps are not checked against a clock (offline evaluation).
+    :param log_clock: monotonic seconds, for the rate limit of rejection log lines.
     """
 
     def __init__(self, accumulator: FiducialAccumulator, pairer: StampPairer,
                  journal: Optional[Journal], logger: Any,
-                 clock: Optional[Callable[[], float]] = None) -> None:
+                 clock: Optional[Callable[[], float]] = None,
+                 log_clock: Callable[[], float] = time.monotonic) -> None:
         self._acc = accumulator
         self._pairer = pairer
         self._journal = journal
         self._log = logger
         self._clock = clock
+        self._log_clock = log_clock
         self._lock = threading.Lock()
         self._last_log: dict[str, float] = {}
         self.journal_error = ""      # the last journal write error; "" once a write succeeds
@@ -63,7 +87,7 @@ class Ingest:
 
     def _rejected(self, exc: RejectedMeasurement) -> None:
         count = self._acc.rejected[exc.reason]
-        now = time.monotonic()
+        now = self._log_clock()
         if count <= LOG_EVERY_UP_TO or now - self._last_log.get(exc.reason, 0.0) >= 1.0:
             self._last_log[exc.reason] = now
             self._log.warning(f"rejected measurement ({exc.reason}, {count} so far): "

@@ -1,4 +1,4 @@
-"""Durable state of ``registration_node`` in ``state_dir`` (no rclpy).
+"""The measurement journal of ``registration_node`` in ``state_dir`` (no rclpy).
 
 ``journal.jsonl``: one JSON object per line. The first line is a header (version, frames,
 dimension); then one line per accepted measurement or enable change, in order. A record is
@@ -12,7 +12,7 @@ A record that cannot be written (disk full, file-size limit, I/O error) raises `
 leaves nothing behind: a partly written line is cut off again at once, so the record can never
 reappear later (the caller does not count it).
 
-``calibration.json``: the latest model, see :mod:`rbc_registration.ros.snapshot`.
+``calibration.json``: the latest model, see :mod:`rbc_registration.pipeline.snapshot`.
 """
 
 from __future__ import annotations
@@ -23,10 +23,8 @@ import os
 import time
 from typing import Any, Iterable, Optional
 
-from rbc_registration.core.accumulator import EnabledChange, Measurement, Record
-
-from .snapshot import (SNAPSHOT_NAME, fsync_dir, read_snapshot, snapshot_path,  # noqa: F401
-                       tidy_state_dir, write_atomic)
+from ..core.accumulator import EnabledChange, Measurement, Record
+from .snapshot import SNAPSHOT_NAME, fsync_dir
 
 JOURNAL_NAME = "journal.jsonl"
 JOURNAL_VERSION = 1

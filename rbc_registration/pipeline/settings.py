@@ -1,5 +1,7 @@
-"""Parameters of ``registration_node``: the table of names, defaults, ranges and descriptions, their
-validation (pure Python, tested without ROS) and the immutable :class:`Settings` snapshot.
+"""Settings of the pipeline, i.e. the parameters of ``registration_node`` and of ``evaluate -p``:
+the table of names, defaults, ranges and descriptions, their validation and the immutable
+:class:`Settings` snapshot. Pure Python (no numpy, no rclpy); the node declares them as ROS
+parameters in :func:`rbc_registration.ros.params.declare`.
 
 Units: metres and seconds (REP 103). msg_docs/README.md renders the same table.
 """
@@ -9,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping, NamedTuple, Optional
+
+from ..core.constants import INTERPOLATIONS, RESTORATIONS, rho_thresholds_error
 
 
 class Spec(NamedTuple):
@@ -25,8 +29,6 @@ class Spec(NamedTuple):
     choices: tuple[str, ...] = ()
 
 
-RESTORATIONS = ("iterative", "closed-form")
-INTERPOLATIONS = ("paper", "kriging")
 CORRECTION_MODES = ("auto", "on", "off")
 TF_MODES = ("corrected", "uncorrected", "none")
 RELIABILITIES = ("reliable", "best_effort")
@@ -191,27 +193,7 @@ def validate(values: Mapping[str, Any]) -> Optional[str]:
         error = validate_one(name, value)
         if error:
             return error
-    if values.get("rho_reject", 0.0) > values.get("rho_apply", math.inf):
-        return (f"rho_reject ({values['rho_reject']:g}) must be <= rho_apply "
-                f"({values['rho_apply']:g})")
-    return None
-
-
-#: ROS parameter type names of the Python types of :data:`SPECS` defaults.
-ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string"}
-
-
-def type_error(name: str, got_type: str, value: Any) -> str:
-    """The reason for a value of the wrong ROS type, e.g. ``sigma:=1`` (an integer) for a double.
-
-    Starts with "Wrong parameter type" as rclpy's own reason does (rclpy tests that prefix).
-    """
-    spec = SPECS.get(name)
-    want = ROS_TYPE_NAMES.get(type(spec.default), "?") if spec is not None else "?"
-    hint = f" (write {float(value)!r})" if want == "double" and isinstance(value, int) \
-        and not isinstance(value, bool) else ""
-    return (f"Wrong parameter type: {name} must be of type {want}, got {got_type.lower()} "
-            f"{value!r}{hint}")
+    return rho_thresholds_error(values.get("rho_reject", 0.0), values.get("rho_apply", math.inf))
 
 
 def corrections_applied(mode: str, recommendation: str) -> bool:
@@ -222,30 +204,3 @@ def corrections_applied(mode: str, recommendation: str) -> bool:
     if mode == "off":
         return False
     return recommendation == "apply"
-
-
-def declare(node: Any) -> Settings:
-    """Declare every parameter on ``node`` (an ``rclpy.node.Node``) with its descriptor and
-    return the validated :class:`Settings` (overrides from the command line or a YAML file
-    included).
-
-    :raises ValueError: when a starting value is invalid (the node refuses to start).
-    """
-    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-
-    values = {}
-    for name, spec in SPECS.items():
-        desc = ParameterDescriptor(name=name, description=spec.description,
-                                   read_only=spec.read_only)
-        if spec.choices:
-            desc.additional_constraints = "one of: " + ", ".join(spec.choices)
-        if isinstance(spec.default, int) and not isinstance(spec.default, bool):
-            desc.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
-                                               step=1)]
-        elif isinstance(spec.default, float):
-            desc.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
-                                                            to_value=float(spec.high), step=0.0)]
-            if spec.low_exclusive:
-                desc.additional_constraints = f"> {spec.low:g}"
-        values[name] = node.declare_parameter(name, spec.default, desc).value
-    return Settings.from_mapping(values)

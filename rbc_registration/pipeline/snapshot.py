@@ -1,14 +1,11 @@
-"""The calibration snapshot of ``registration_node`` in ``state_dir`` (no rclpy).
+"""The calibration snapshot of ``registration_node`` in ``state_dir``: its JSON and the atomic
+file operations (no rclpy).
 
 ``calibration.json``: the latest model, written atomically (temporary file, fsync, rename,
 fsync of the directory): a reader sees the old or the new file, never a mix. The node never
-loads it (the journal, :mod:`rbc_registration.ros.persistence`, is the source of truth);
+loads it (the journal, :mod:`rbc_registration.pipeline.journal`, is the source of truth);
 :func:`tidy_state_dir` removes temporary files of an interrupted write and moves an unreadable
 snapshot aside before the node starts.
-
-Test hook: with ``RBC_TEST_SNAPSHOT_PAUSE=<path>`` in the environment, :func:`write_atomic` writes
-half of the temporary file, creates ``<path>`` and sleeps (up to 10 minutes) before finishing,
-so that a fault test can SIGKILL the node inside a snapshot write.
 """
 
 from __future__ import annotations
@@ -17,11 +14,15 @@ import contextlib
 import json
 import os
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any, BinaryIO, Callable
+
+from .jsonable import json_clean, registration_json
+
+if TYPE_CHECKING:
+    from .state import ModelState
 
 SNAPSHOT_NAME = "calibration.json"
 SNAPSHOT_FORMAT = "rbc_registration calibration 1"
-PAUSE_ENV = "RBC_TEST_SNAPSHOT_PAUSE"
 
 
 def fsync_dir(path: str) -> None:
@@ -33,9 +34,17 @@ def fsync_dir(path: str) -> None:
         os.close(fd)
 
 
-def write_atomic(path: str, text: str) -> None:
+def write_all(f: BinaryIO, data: bytes) -> None:
+    """Write ``data`` to the open file ``f`` (the default of :func:`write_atomic`)."""
+    f.write(data)
+
+
+def write_atomic(path: str, text: str,
+                 write: Callable[[BinaryIO, bytes], None] = write_all) -> None:
     """Write ``text`` to ``path`` atomically: temporary file, fsync, rename, fsync directory.
 
+    :param write: writes the bytes into the open temporary file (a fault test passes one that
+        stops half way).
     :raises OSError: when it cannot be written; ``path`` keeps its old content and the
         temporary file is removed.
     """
@@ -45,9 +54,7 @@ def write_atomic(path: str, text: str) -> None:
     data = text.encode("utf-8")
     try:
         with open(tmp, "wb") as f:
-            if os.environ.get(PAUSE_ENV):
-                data = _pause_inside_write(f, data, os.environ[PAUSE_ENV])
-            f.write(data)
+            write(f, data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
@@ -56,18 +63,6 @@ def write_atomic(path: str, text: str) -> None:
             os.unlink(tmp)
         raise
     fsync_dir(directory)
-
-
-def _pause_inside_write(f: Any, data: bytes, marker: str) -> bytes:
-    """The test hook (module docstring): write half, flush, signal ``marker``, sleep."""
-    half = len(data) // 2
-    f.write(data[:half])
-    f.flush()
-    os.fsync(f.fileno())
-    with open(marker, "w") as m:
-        m.write(f"{f.name}\n")
-    time.sleep(600.0)
-    return data[half:]
 
 
 def read_snapshot(path: str) -> dict[str, Any]:
@@ -119,3 +114,32 @@ def tidy_state_dir(state_dir: str) -> list[str]:
 def snapshot_path(state_dir: str) -> str:
     """Path of the calibration snapshot in ``state_dir``."""
     return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), SNAPSHOT_NAME)
+
+
+def snapshot_json(state: ModelState, working_frame: str, destination_frame: str,
+                  dimension: int) -> str:
+    """The calibration snapshot (``calibration.json``) of ``state``: frames, both registrations
+    (destination = R @ working + t, metres), the fiducials and their corrections, sigma, rho and
+    the settings the model was built with."""
+    model, fiducials, settings = state.model, state.fiducials, state.settings
+    data: dict[str, Any] = {
+        "format": SNAPSHOT_FORMAT, "working_frame": working_frame,
+        "destination_frame": destination_frame, "dimension": int(dimension), "units": "m",
+        "stamp_ns": state.stamp_ns, "model_valid": model is not None, "error": state.error,
+        "n_measurements": state.n_measurements,
+    }
+    if settings is not None:
+        data["settings"] = {k: getattr(settings, k) for k in settings.__dataclass_fields__}
+    if fiducials is not None:
+        data["fiducial_ids"] = list(fiducials.ids)
+        data["disabled_ids"] = list(fiducials.disabled_ids)
+        data["working"] = fiducials.working.tolist()
+        data["destination"] = fiducials.destination.tolist()
+    if model is not None:
+        data.update(corrections=model.corrections.tolist(),
+                    corrected=registration_json(model.corrected),
+                    uncorrected=registration_json(model.uncorrected),
+                    sigma=model.sigma, sigma_source=model.sigma_source,
+                    sigma_l=[float(v) for v in model.sigma_l], rho=model.rho,
+                    recommendation=model.recommendation)
+    return json.dumps(json_clean(data), indent=1)

@@ -1,13 +1,14 @@
-"""The ROS 2 side of rbc_registration: ``registration_node`` (:mod:`.node`), message <-> numpy
-conversions, parameters, persistence and reports. Imports rclpy; :mod:`rbc_registration.core`
-never does.
+"""The ROS 2 layer of rbc_registration (rclpy and message packages): ``registration_node``
+(:mod:`.node`, :mod:`.services`), message <-> numpy conversions (:mod:`.conversions`), the
+parameters as ROS parameters (:mod:`.params`), the status, diagnostics and marker messages
+(:mod:`.status`, :mod:`.markers`), bag replay (:mod:`.replay`), node processes
+(:mod:`.process`) and the demo (:mod:`.demo`). Everything below it (pipeline, io, core) never
+imports rclpy.
 
-The node calls BLAS from two threads (services and the recompute thread). OpenBLAS's own worker
-threads spin-wait and, on a busy machine, stalled the whole node for seconds (benchmarks/RESULTS.md,
-"Soak"); one BLAS thread is the default here, set before numpy is first imported. Set
-``OPENBLAS_NUM_THREADS`` yourself to override it.
+Importing this package defaults BLAS to one thread, before the node module loads numpy: see
+:mod:`rbc_registration.runtime`.
 """
 
-import os
+from ..runtime import default_one_blas_thread
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+default_one_blas_thread()

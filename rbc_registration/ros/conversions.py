@@ -7,15 +7,17 @@ Units: metres (REP 103). A ``Registration`` maps ``destination ≈ R @ working +
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple, Optional, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, PointStamped, TransformStamped, Vector3
 from numpy.typing import NDArray
 
-from rbc_registration.core.records import quote
 from rbc_registration_interfaces.msg import TargetCorrection
+
+from ..core.records import quote
+from ..pipeline.ingest import PairArgs
 
 
 def stamp_to_seconds(stamp: Time) -> float:
@@ -41,17 +43,6 @@ def array_to_point(xyz: Sequence[float]) -> Point:
 def array_to_vector3(xyz: Sequence[float]) -> Vector3:
     """(3,) -> ``geometry_msgs/Vector3``."""
     return Vector3(x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
-
-
-class PairArgs(NamedTuple):
-    """A FiducialPair as the arguments of ``FiducialAccumulator.prepare`` (points (3,))."""
-
-    fiducial_id: Optional[str]
-    working_xyz: Sequence[float]
-    destination_xyz: Sequence[float]
-    working_frame: str
-    destination_frame: str
-    stamp_s: float
 
 
 def fiducial_pair_to_args(msg: Any) -> PairArgs:

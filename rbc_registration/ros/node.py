@@ -2,15 +2,16 @@
 (robot / world) from fiducial pairs, improved by restoring the rigid-body condition.
 
 Callbacks convert messages to numpy, call :mod:`rbc_registration.core`, convert back and
-publish. The served model is an immutable :class:`~rbc_registration.ros.worker.ModelState`
-swapped atomically by the recompute thread, so services never wait for a recompute. See
-msg_docs/README.md for every topic, service, parameter and frame.
+publish. The served model is an immutable :class:`~rbc_registration.pipeline.state.ModelState`
+swapped atomically by the recompute thread (:mod:`rbc_registration.pipeline.worker`), so services
+never wait for a recompute. See msg_docs/README.md for every topic, service, parameter and frame.
 """
 
 from __future__ import annotations
 
 import threading
-from typing import Any, Optional
+import time
+from typing import Any, Callable, Optional
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -26,17 +27,23 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from rbc_registration.core.accumulator import FiducialAccumulator
-from rbc_registration.core.pairing import DESTINATION, WORKING, StampPairer
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus
 from rbc_registration_interfaces.srv import CorrectTarget, CorrectTargets, SetFiducialEnabled
 
+from ..core.accumulator import FiducialAccumulator
+from ..core.pairing import DESTINATION, WORKING, StampPairer
+from ..pipeline.ingest import Ingest
+from ..pipeline.journal import Journal
+from ..pipeline.settings import SPECS
+from ..pipeline.snapshot import snapshot_json, snapshot_path, tidy_state_dir, write_atomic
+from ..pipeline.state import EMPTY_STATE, ModelState, build_state
+from ..pipeline.worker import RecomputeWorker
 from . import conversions as conv
-from . import params, persistence, reports
+from . import params
 from .guards import guard_input, guard_service
-from .ingest import Ingest
+from .markers import markers_msg
 from .services import ServicesMixin
-from .worker import EMPTY_STATE, ModelState, RecomputeWorker, build_state
+from .status import diagnostics_msg, status_msg
 
 try:  # tf2_ros is optional (not on PyPI): without it no static tf is broadcast.
     from tf2_ros import StaticTransformBroadcaster
@@ -57,25 +64,36 @@ INPUT = {"reliable": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
 class RegistrationNode(ServicesMixin, Node):
     """The registration node (see the module docstring and msg_docs/README.md).
 
+    :param build: builds the :class:`ModelState` from the fiducials, settings and a stamp
+        (default :func:`~rbc_registration.pipeline.state.build_state`).
+    :param write_snapshot: writes the calibration snapshot ``(path, text)`` (default
+        :func:`~rbc_registration.pipeline.snapshot.write_atomic`).
+    :param clock: monotonic seconds for the recompute debounce (default
+        :func:`time.monotonic`).
+    :param kwargs: passed to ``rclpy.node.Node`` (``context``, ``parameter_overrides``, ...).
     :raises ValueError: when a parameter's starting value is invalid or the journal in
         ``state_dir`` was written with other frames / another dimension.
     """
 
-    def __init__(self, node_name: str = "registration_node", **kwargs: Any) -> None:
+    def __init__(self, node_name: str = "registration_node", *,
+                 build: Callable[..., ModelState] = build_state,
+                 write_snapshot: Callable[[str, str], None] = write_atomic,
+                 clock: Callable[[], float] = time.monotonic, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self._settings = params.declare(self)
         s = self._settings
+        self._build = build
+        self._write_snapshot = write_snapshot
         self._pub_lock = threading.Lock()
         self._state: ModelState = EMPTY_STATE
         self._generation = 0  # bumped by ~/reset: a rebuild of an older generation is dropped
-        self.rebuilds = 0     # models built so far (for tests and diagnostics)
         accumulator = FiducialAccumulator(s.dimension, s.working_frame, s.destination_frame,
                                           s.merge_radius, s.outlier_distance, s.max_stamp_age)
         journal = None
         if s.state_dir:
-            for warning in persistence.tidy_state_dir(s.state_dir):
+            for warning in tidy_state_dir(s.state_dir):
                 self.get_logger().warning(warning)
-            journal = persistence.Journal(s.state_dir, {"working_frame": s.working_frame,
+            journal = Journal(s.state_dir, {"working_frame": s.working_frame,
                                                         "destination_frame": s.destination_frame,
                                                         "dimension": s.dimension},
                                           fsync=s.journal_fsync)
@@ -115,7 +133,7 @@ class RegistrationNode(ServicesMixin, Node):
         self.add_post_set_parameters_callback(self._on_parameters_set)
 
         self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
-                                       self._on_worker_error)
+                                       self._on_worker_error, clock)
         if restored:
             self._worker.request_now()
         self._publish_status()
@@ -145,9 +163,8 @@ class RegistrationNode(ServicesMixin, Node):
 
     def _rebuild(self) -> None:
         generation = self._generation
-        self.rebuilds += 1
         fiducials = self._ingest.fiducial_set()
-        state = build_state(fiducials, self._settings, self.get_clock().now().nanoseconds)
+        state = self._build(fiducials, self._settings, self.get_clock().now().nanoseconds)
         with self._pub_lock:
             if generation != self._generation:
                 return
@@ -173,7 +190,7 @@ class RegistrationNode(ServicesMixin, Node):
                 if self._tf is not None and s.tf_broadcast != "none":
                     self._tf.sendTransform(corrected if s.tf_broadcast == "corrected"
                                            else uncorrected)
-            self._pub_markers.publish(reports.markers_msg(state, s, now))
+            self._pub_markers.publish(markers_msg(state, s, now))
         self._publish_status()
         if s.state_dir:
             try:
@@ -183,19 +200,21 @@ class RegistrationNode(ServicesMixin, Node):
 
     def status(self) -> RegistrationStatus:
         """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
-        return reports.status_msg(self._state, self._settings, self._ingest.counters(),
-                                  self.get_clock().now().to_msg())
+        return status_msg(self._state, self._settings, self._ingest.counters(),
+                          self.get_clock().now().to_msg())
 
     def _publish_status(self) -> None:
         status = self.status()
         with self._pub_lock:
             self._pub_status.publish(status)
-            self._pub_diagnostics.publish(reports.diagnostics_msg(
+            self._pub_diagnostics.publish(diagnostics_msg(
                 status, self.get_name(), status.header.stamp, self._ingest.journal_error))
 
     def _save(self, state: ModelState) -> str:
-        path = persistence.snapshot_path(self._settings.state_dir)
-        persistence.write_atomic(path, reports.snapshot_json(state, self.status()))
+        s = self._settings
+        path = snapshot_path(s.state_dir)
+        self._write_snapshot(path, snapshot_json(state, s.working_frame, s.destination_frame,
+                                                 s.dimension))
         return path
 
     # -- parameters ---------------------------------------------------------------------------
@@ -216,7 +235,7 @@ class RegistrationNode(ServicesMixin, Node):
         super()._check_undeclared_parameters(parameter_list)
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> Any:
-        changes = {p.name: p.value for p in parameters if p.name in params.SPECS}
+        changes = {p.name: p.value for p in parameters if p.name in SPECS}
         try:
             self._settings.replace(**changes)
         except ValueError as exc:
@@ -224,7 +243,7 @@ class RegistrationNode(ServicesMixin, Node):
         return SetParametersResult(successful=True)
 
     def _on_parameters_set(self, parameters: list[Parameter]) -> None:
-        changes = {p.name: p.value for p in parameters if p.name in params.SPECS}
+        changes = {p.name: p.value for p in parameters if p.name in SPECS}
         if not changes:
             return
         self._settings = self._settings.replace(**changes)
@@ -239,8 +258,10 @@ class RegistrationNode(ServicesMixin, Node):
         super().destroy_node()
 
 
-def main(args: Optional[list[str]] = None) -> None:
+def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
     """Console script ``registration_node``: spin the node on a single-threaded executor.
+
+    :param node_options: passed to :class:`RegistrationNode` (e.g. ``write_snapshot``).
 
     Exits with status 1 when a parameter is invalid or ``state_dir`` holds a journal of
     another setup (the reason is logged).
@@ -249,7 +270,7 @@ def main(args: Optional[list[str]] = None) -> None:
     node: Optional[RegistrationNode] = None
     code = 0
     try:
-        node = RegistrationNode()
+        node = RegistrationNode(**node_options)
         # Single-threaded: in rclpy it takes messages about twice as fast as the multi-threaded
         # executor; model rebuilds run in their own thread, so services still answer meanwhile.
         executor = SingleThreadedExecutor()

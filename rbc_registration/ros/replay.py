@@ -12,7 +12,9 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple, Optional, Sequence, Union
 
-from .io.bag import BagError, Progress, RawMessage, read_raw
+from ..io.bag.reader import read_raw
+from ..io.bag.records import BagError, RawMessage
+from ..io.progress import Progress
 
 SETTLE_S = 0.5      # after the first subscriber matched: time for the others to be discovered
 ACK_TIMEOUT_S = 10.0

@@ -13,9 +13,10 @@ from std_srvs.srv import Trigger
 
 from rbc_registration_interfaces.srv import CorrectTarget, CorrectTargets, SetFiducialEnabled
 
+from ..pipeline.settings import corrections_applied
+from ..pipeline.state import EMPTY_STATE
 from . import conversions as conv
-from . import params, reports
-from .worker import EMPTY_STATE
+from .markers import markers_msg
 
 RECOMPUTE_TIMEOUT_S = 60.0
 
@@ -43,7 +44,7 @@ class ServicesMixin:
             tc = model.correct(points)
         except ValueError as exc:
             return [], str(exc), ""
-        applied = params.corrections_applied(s.apply_corrections, model.recommendation)
+        applied = corrections_applied(s.apply_corrections, model.recommendation)
         rho = model.rho if model.rho is not None else float("nan")
         note = (f"corrections {'applied' if applied else 'not applied'} (mode "
                 f"{s.apply_corrections}, recommendation {model.recommendation}, rho {rho:.3g})")
@@ -89,8 +90,8 @@ class ServicesMixin:
         response.success, response.message = self._ingest.reset()
         self._publish_status()
         with self._pub_lock:
-            self._pub_markers.publish(reports.markers_msg(EMPTY_STATE, self._settings,
-                                                          self.get_clock().now().to_msg()))
+            self._pub_markers.publish(markers_msg(EMPTY_STATE, self._settings,
+                                                  self.get_clock().now().to_msg()))
         return response
 
     def _on_recompute(self, request: Trigger.Request, response: Trigger.Response) -> Any:

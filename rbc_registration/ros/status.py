@@ -1,39 +1,23 @@
-"""What ``registration_node`` reports: ``~/status``, ``/diagnostics``, ``~/markers`` and the
-calibration snapshot, each built from an immutable :class:`~rbc_registration.ros.worker.ModelState`
-plus counters. Units: metres (REP 103); NaN where a value is unknown.
+"""What ``registration_node`` reports about its model: ``~/status`` and ``/diagnostics``, built
+from an immutable :class:`~rbc_registration.pipeline.state.ModelState` plus the ingestion
+counters. Units: metres (REP 103); NaN where a value is unknown.
 """
 
 from __future__ import annotations
 
-import json
-import math
-from typing import Any, Mapping, NamedTuple
+from typing import Any
 
-import numpy as np
-from builtin_interfaces.msg import Duration, Time
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from std_msgs.msg import ColorRGBA
-from visualization_msgs.msg import Marker, MarkerArray
-
 from rbc_registration_interfaces.msg import RegistrationStatus
 
-from .conversions import array_to_point, embed_3d, nanoseconds_to_stamp
-from .params import Settings, corrections_applied
-from .snapshot import SNAPSHOT_FORMAT
-from .worker import ModelState
+from ..pipeline.ingest import Counters
+from ..pipeline.settings import Settings, corrections_applied
+from ..pipeline.state import ModelState
+from .conversions import nanoseconds_to_stamp
 
 #: RegistrationStatus.sigma_source for the core's sigma_source values.
 SIGMA_SOURCES = {"given": "parameter", "repeats": "repeats", "unknown": "unknown"}
-
-
-class Counters(NamedTuple):
-    """Accumulator counters at one moment (read under the node's lock)."""
-
-    n_measurements: int
-    rejected: Mapping[str, int]
-    n_disabled: int
-    n_journal_failures: int = 0
-    journal_error: str = ""
 
 
 def _nan(value: Any) -> float:
@@ -123,95 +107,3 @@ def diagnostics_msg(status: RegistrationStatus, node_name: str, now: Time,
     msg = DiagnosticArray(status=[d])
     msg.header.stamp = now
     return msg
-
-
-def _color(r: float, g: float, b: float, a: float = 1.0) -> ColorRGBA:
-    return ColorRGBA(r=r, g=g, b=b, a=a)
-
-
-def markers_msg(state: ModelState, settings: Settings, now: Time) -> MarkerArray:
-    """``~/markers`` in the destination frame: enabled fiducials (green spheres), disabled ones
-    (grey), and per enabled fiducial an arrow along its correction mapped by R_c, drawn
-    ``marker_arrow_gain`` times longer than the correction. Starts with DELETEALL."""
-    out = MarkerArray(markers=[Marker(action=Marker.DELETEALL)])
-    fiducials, model = state.fiducials, state.model
-    if fiducials is None:
-        return out
-    frame, ns, scale = settings.destination_frame, "rbc_registration", settings.marker_scale
-
-    def marker(kind: int, mid: int, name: str) -> Marker:
-        m = Marker(type=kind, id=mid, ns=f"{ns}/{name}", action=Marker.ADD)
-        m.header.frame_id = frame
-        m.header.stamp = now
-        m.pose.orientation.w = 1.0
-        m.lifetime = Duration()
-        return m
-
-    def xyz(points: np.ndarray) -> np.ndarray:
-        return points if points.shape[1] == 3 else np.column_stack([points, np.zeros(len(points))])
-
-    spheres = marker(Marker.SPHERE_LIST, 0, "fiducials")
-    spheres.scale.x = spheres.scale.y = spheres.scale.z = scale
-    spheres.color = _color(0.1, 0.8, 0.2)
-    spheres.points = [array_to_point(p) for p in xyz(fiducials.destination)]
-    out.markers.append(spheres)
-    if fiducials.disabled_ids:
-        disabled = marker(Marker.TEXT_VIEW_FACING, 1, "disabled")
-        disabled.scale.z = scale
-        disabled.color = _color(0.6, 0.6, 0.6)
-        disabled.text = "disabled: " + ", ".join(fiducials.disabled_ids)
-        out.markers.append(disabled)
-    if model is None:
-        return out
-    r, t = embed_3d(model.corrected.rotation, model.corrected.translation)
-    start = xyz(fiducials.destination)
-    step = xyz(np.asarray(model.corrections)) @ r.T * (-settings.marker_arrow_gain)
-    for k in range(len(start)):
-        arrow = marker(Marker.ARROW, k, "corrections")
-        arrow.scale.x, arrow.scale.y, arrow.scale.z = scale * 0.2, scale * 0.4, scale * 0.4
-        arrow.color = _color(0.9, 0.3, 0.1)
-        arrow.points = [array_to_point(start[k]), array_to_point(start[k] + step[k])]
-        out.markers.append(arrow)
-    return out
-
-
-def snapshot_json(state: ModelState, status: RegistrationStatus) -> str:
-    """The calibration snapshot (``calibration.json``): frames, both registrations (destination
-    = R @ working + t, metres), the fiducials and their corrections, sigma, rho and settings."""
-    model, fiducials, settings = state.model, state.fiducials, state.settings
-    data: dict[str, Any] = {
-        "format": SNAPSHOT_FORMAT,
-        "working_frame": status.working_frame_id,
-        "destination_frame": status.destination_frame_id,
-        "dimension": int(status.dimension), "units": "m",
-        "stamp_ns": state.stamp_ns, "model_valid": model is not None, "error": state.error,
-        "n_measurements": state.n_measurements,
-    }
-    if settings is not None:
-        data["settings"] = {k: getattr(settings, k) for k in settings.__dataclass_fields__}
-    if fiducials is not None:
-        data["fiducial_ids"] = list(fiducials.ids)
-        data["disabled_ids"] = list(fiducials.disabled_ids)
-        data["working"] = fiducials.working.tolist()
-        data["destination"] = fiducials.destination.tolist()
-    if model is not None:
-        def reg(registration: Any) -> dict[str, Any]:
-            return {"rotation": np.asarray(registration.rotation).tolist(),
-                    "translation": np.asarray(registration.translation).tolist(),
-                    "fre_rms": float(registration.fre_rms)}
-        data.update(corrections=np.asarray(model.corrections).tolist(),
-                    corrected=reg(model.corrected), uncorrected=reg(model.uncorrected),
-                    sigma=model.sigma, sigma_source=model.sigma_source,
-                    sigma_l=[float(v) for v in model.sigma_l], rho=model.rho,
-                    recommendation=model.recommendation)
-
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, list):
-            return [clean(x) for x in v]
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        return v
-    return json.dumps(clean(data), indent=1)
-

@@ -16,7 +16,8 @@ from rbc_registration.io.csv_io import write_fiducials, write_targets
 
 def run(*args, check=True):
     proc = subprocess.run([sys.executable, "-m", "rbc_registration.cli", *map(str, args)],
-                          capture_output=True, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+                          capture_output=True, text=True,
+                          env={**os.environ, "PYTHONWARNINGS": "ignore"})
     if check:
         assert proc.returncode == 0, proc.stderr
     return proc

@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 
 from rbc_registration import cli
-from rbc_registration.bag_commands import cell_messages
+from rbc_registration.core.constants import M_PER_MM
 from rbc_registration.core.synthetic import make_cell
-from rbc_registration.io.bag import DEFAULT_TOPICS, OutMessage, write_bag
+from rbc_registration.io.bag.records import DEFAULT_TOPICS, OutMessage
+from rbc_registration.io.bag.synthetic import cell_messages
+from rbc_registration.io.bag.writer import write_bag
 from rbc_registration.io.csv_io import write_fiducials, write_targets
 
-M = 1e-3  # the synthetic cells are in mm; bags and these CSVs are in metres
+M = M_PER_MM  # the synthetic cells are in mm; bags and these CSVs are in metres
 
 
 def cell_csv(cell, folder: Path) -> tuple[Path, Path]:

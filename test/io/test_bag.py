@@ -10,11 +10,13 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from rbc_registration import cli
-from rbc_registration.bag_commands import cell_messages
 from rbc_registration.core.synthetic import make_cell
-from rbc_registration.io import bag as bagio
-from rbc_registration.io.bag import (DEFAULT_TOPICS, FIDUCIAL_PAIR, BagError, PairMessage,
-                                     PointMessage, Topics, read_bag, read_raw, write_bag)
+from rbc_registration.io.bag import typestore
+from rbc_registration.io.bag.reader import read_bag, read_raw
+from rbc_registration.io.bag.records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, BagError,
+                                             PairMessage, PointMessage, Topics)
+from rbc_registration.io.bag.synthetic import cell_messages
+from rbc_registration.io.bag.writer import write_bag
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +139,7 @@ def test_truncated_bag(tmp_path, bags, storage, fraction):
 
 def test_corrupt_message_payload(tmp_path):
     """A message whose bytes do not decode as its type."""
-    store = bagio.make_typestore()
+    store = typestore.make_typestore()
     bag = tmp_path / "garbage"
     with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         conn = w.add_connection(DEFAULT_TOPICS.fiducial_pairs, FIDUCIAL_PAIR, typestore=store)
@@ -171,7 +173,7 @@ def test_only_one_point_stream(tmp_path, cell_a):
 
 
 def test_missing_interface_definitions(monkeypatch, tmp_path, bags):
-    monkeypatch.setattr(bagio, "interface_msg_dirs", lambda: [tmp_path])
+    monkeypatch.setattr(typestore, "interface_msg_dirs", lambda: [tmp_path])
     with pytest.raises(BagError, match="missing type definitions: FiducialPair.msg"):
         read_bag(bags["sqlite3"], progress=False)
 

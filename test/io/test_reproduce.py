@@ -2,10 +2,9 @@
 
 import json
 
-import numpy as np
 import pytest
 
-from rbc_registration.reproduce import reproduce
+from rbc_registration.io.reproduce import reproduce
 
 
 @pytest.fixture(scope="module")
@@ -40,4 +39,5 @@ def test_outputs_written(doc):
     assert on_disk["findings"] == found["findings"]
     for name in found["figures"]:
         assert (out / name).stat().st_size > 5000          # a real PNG, not an empty file
-    assert sum("kriging" in n for n in found["figures"]) == sum("paper" in n for n in found["figures"])
+    figures = found["figures"]
+    assert sum("kriging" in n for n in figures) == sum("paper" in n for n in figures)

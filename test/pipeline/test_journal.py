@@ -9,8 +9,9 @@ import sys
 import pytest
 
 from rbc_registration.core.accumulator import EnabledChange, FiducialAccumulator, Measurement
-from rbc_registration.ros.persistence import (JOURNAL_NAME, Journal, JournalMismatch,
-                                              record_from_json, record_to_json, write_atomic)
+from rbc_registration.pipeline.journal import (JOURNAL_NAME, Journal, JournalMismatch,
+                                               record_from_json, record_to_json)
+from rbc_registration.pipeline.snapshot import write_atomic
 
 HEADER = {"working_frame": "tracker", "destination_frame": "world", "dimension": 3}
 
@@ -184,7 +185,7 @@ def test_a_new_journal_whose_header_cannot_be_written_yet(tmp_path, monkeypatch)
 FSIZE_WRITER = """
 import resource, signal, sys
 from rbc_registration.core.accumulator import Measurement
-from rbc_registration.ros.persistence import Journal
+from rbc_registration.pipeline.journal import Journal
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)       # writes beyond the limit fail with EFBIG
 resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[2]), int(sys.argv[2])))
 j = Journal(sys.argv[1], {"working_frame": "tracker", "destination_frame": "world",

@@ -1,4 +1,4 @@
-"""Parameter table and validation of registration_node (pure: no rclpy)."""
+"""Settings of the pipeline (the node's parameters): table, validation, config file (pure)."""
 
 import math
 import os
@@ -6,8 +6,8 @@ import re
 
 import pytest
 
-from rbc_registration.ros import params
-from rbc_registration.ros.params import SPECS, Settings, corrections_applied, validate, validate_one
+from rbc_registration.pipeline.settings import (SPECS, Settings, corrections_applied, validate,
+                                                validate_one)
 
 
 def test_defaults_are_valid_and_cover_every_setting():
@@ -73,10 +73,6 @@ def test_corrections_applied_follows_the_rho_rule_unless_forced(mode, recommenda
     assert corrections_applied(mode, recommendation) is applied
 
 
-def test_params_module_does_not_need_rclpy_to_validate():
-    assert "declare" in dir(params)  # declare imports rcl_interfaces lazily, only when called
-
-
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
@@ -90,21 +86,3 @@ def test_config_file_lists_every_parameter_with_a_valid_value():
     for name, value in values.items():
         assert type(value) is type(SPECS[name].default), name   # ROS types must match
     assert settings.state_dir
-
-
-def test_api_reference_documents_every_parameter_topic_and_service():
-    with open(os.path.join(ROOT, "msg_docs", "README.md")) as f:
-        doc = f.read()
-    with open(os.path.join(ROOT, "rbc_registration", "ros", "node.py")) as f:
-        node_source = f.read()
-    names = set(re.findall(r'"(~/[a-z_]+|/diagnostics)"', node_source))
-    assert len(names) >= 13
-    for name in sorted(names) + [f"`{p}`" for p in SPECS]:
-        assert name in doc, f"{name} is not documented in msg_docs/README.md"
-
-
-def test_a_wrong_type_names_the_parameter_and_both_types():
-    assert params.type_error("sigma", "INTEGER", 1) == (
-        "Wrong parameter type: sigma must be of type double, got integer 1 (write 1.0)")
-    assert params.type_error("interpolation", "BOOL", True) == (
-        "Wrong parameter type: interpolation must be of type string, got bool True")

@@ -1,6 +1,6 @@
 """The calibration snapshot of registration_node (pure: no rclpy): atomic writes, an interrupted
-write (SIGKILL inside it, through the test hook), and the start-up tidy-up that never lets a
-partial or corrupt snapshot be used."""
+write (SIGKILL inside it, with a writer that pauses half way), and the start-up tidy-up that
+never lets a partial or corrupt snapshot be used."""
 
 import json
 import os
@@ -11,9 +11,11 @@ import time
 
 import pytest
 
-from rbc_registration.ros import snapshot
-from rbc_registration.ros.snapshot import (PAUSE_ENV, SNAPSHOT_FORMAT, SNAPSHOT_NAME,
-                                           read_snapshot, tidy_state_dir, write_atomic)
+from rbc_registration.pipeline import snapshot
+from rbc_registration.pipeline.snapshot import (SNAPSHOT_FORMAT, SNAPSHOT_NAME, read_snapshot,
+                                                tidy_state_dir, write_atomic)
+
+PAUSED_WRITER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "paused_writer.py")
 
 GOOD = json.dumps({"format": SNAPSHOT_FORMAT, "n_measurements": 3})
 
@@ -65,21 +67,13 @@ def test_tidy_keeps_a_good_snapshot_and_accepts_a_missing_directory(tmp_path):
     assert tidy_state_dir(str(tmp_path / "nope")) == []
 
 
-WRITER = """
-import sys
-from rbc_registration.ros.snapshot import write_atomic
-write_atomic(sys.argv[1], sys.argv[2])
-"""
-
-
 def test_sigkill_inside_a_write_leaves_the_old_snapshot_whole(tmp_path):
-    """The test hook pauses the write half way; SIGKILL lands inside it, deterministically."""
+    """The writer pauses half way; SIGKILL lands inside the write, deterministically."""
     path = str(tmp_path / SNAPSHOT_NAME)
     write_atomic(path, GOOD)
     marker = tmp_path / "paused"
     new = json.dumps({"format": SNAPSHOT_FORMAT, "n_measurements": 4, "pad": "x" * 10000})
-    proc = subprocess.Popen([sys.executable, "-c", WRITER, path, new],
-                            env=dict(os.environ, **{PAUSE_ENV: str(marker)}))
+    proc = subprocess.Popen([sys.executable, PAUSED_WRITER, str(marker), path, new])
     try:
         end = time.monotonic() + 60
         while not marker.exists() and proc.poll() is None and time.monotonic() < end:

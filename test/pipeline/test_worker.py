@@ -1,57 +1,132 @@
-"""Debounced recompute thread and model-state building (pure: no rclpy)."""
+"""The debounce rule (pure, exact times) and the recompute thread driven by a fake clock: no
+sleeps, no counts over real time. Pure: no rclpy."""
 
 import threading
-import time
 
-import numpy as np
+import pytest
 
-from rbc_registration.core.accumulator import FiducialAccumulator
-from rbc_registration.ros.params import Settings
-from rbc_registration.ros.worker import RecomputeWorker, build_state, model_config
+from rbc_registration.pipeline.worker import MAX_DELAY_FACTOR, Debounce, RecomputeWorker
 
 
-def counting_worker(period):
+class FakeClock:
+    """Monotonic seconds that move only when the test says so."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+        self._lock = threading.Lock()
+
+    def __call__(self) -> float:
+        with self._lock:
+            return self.now
+
+    def set(self, t: float) -> None:
+        with self._lock:
+            self.now = t
+
+
+# -- the rule ---------------------------------------------------------------------------------
+def test_nothing_pending_is_never_due():
+    d = Debounce()
+    assert d.due_in(0.0, 0.2) is None and not d.pending
+
+
+def test_a_burst_is_due_one_period_after_its_last_change():
+    d = Debounce()
+    for _ in range(200):
+        d.change(5.0)
+    assert d.pending
+    assert d.due_in(5.0, 0.3) == pytest.approx(0.3)
+    assert d.due_in(5.29, 0.3) > 0
+    assert d.due_in(5.3, 0.3) <= 0
+    d.start()
+    assert d.due_in(100.0, 0.3) is None
+
+
+def test_each_change_restarts_the_quiet_period():
+    d = Debounce()
+    d.change(0.0)
+    d.change(0.2)
+    assert d.due_in(0.3, 0.3) == pytest.approx(0.2)   # due at 0.5, not 0.3
+
+
+def test_a_continuous_stream_is_due_ten_periods_after_its_first_change():
+    """A change every 10 ms with a 50 ms period: never quiet, yet rebuilt 0.5 s after the first
+    change of each round (at 0.5, 1.01 and 1.52 s)."""
+    d = Debounce()
+    period, rebuilds, first = 0.05, [], None
+    for k in range(161):
+        t = k * 0.01
+        d.change(t)
+        first = t if first is None else first
+        if d.due_in(t, period) <= 1e-12:
+            rebuilds.append((first, t))
+            d.start()
+            first = None
+    assert len(rebuilds) == 3
+    for start, at in rebuilds:
+        assert at == pytest.approx(start + MAX_DELAY_FACTOR * period)
+
+
+def test_urgent_is_due_at_once_and_a_negative_period_counts_as_zero():
+    d = Debounce()
+    d.urgent(1.0)
+    assert d.due_in(1.0, 30.0) == 0.0
+    d.start()
+    d.change(2.0)
+    assert d.due_in(2.0, -1.0) == 0.0
+
+
+# -- the thread -------------------------------------------------------------------------------
+def counting_worker(period, clock):
     calls = []
-    done = threading.Event()
 
     def rebuild():
-        calls.append(time.monotonic())
-        done.set()
+        calls.append(clock())
 
     errors = []
-    return RecomputeWorker(rebuild, lambda: period, errors.append), calls, done, errors
+    return RecomputeWorker(rebuild, lambda: period, errors.append, clock), calls, errors
 
 
-def test_a_burst_is_rebuilt_once_after_the_debounce_period():
-    worker, calls, done, errors = counting_worker(0.3)
+def test_a_burst_is_rebuilt_once_when_the_clock_reaches_the_period():
+    clock = FakeClock()
+    worker, calls, errors = counting_worker(30.0, clock)
     try:
         for _ in range(200):
-            worker.notify()
-        assert done.wait(5.0)
-        time.sleep(0.5)
-        assert len(calls) == 1 and errors == []
+            ticket = worker.notify()
+        assert not worker.wait(ticket, 0.2)      # the fake clock stands still: not due
+        assert calls == []
+        clock.set(30.0)
+        worker.wake()
+        assert worker.wait(ticket, 10.0)
+        assert worker.wait(worker.request_now(), 10.0)
+        assert calls == [30.0, 30.0] and errors == []   # the burst once, then the request
     finally:
         worker.stop()
 
 
-def test_a_continuous_stream_still_rebuilds_at_the_latest_after_ten_periods():
-    worker, calls, done, _ = counting_worker(0.05)
+def test_a_continuous_stream_is_still_rebuilt():
+    """Changes every 10 ms of the fake clock with a 50 ms period: no quiet period ever, yet the
+    first rebuild comes at the latest 10 periods after the first change."""
+    clock = FakeClock()
+    worker, calls, _ = counting_worker(0.05, clock)
     try:
-        end = time.monotonic() + 1.5
-        while time.monotonic() < end:   # a change every 10 ms: never quiet for 50 ms
+        first = worker.notify()
+        for k in range(1, 61):
+            clock.set(k * 0.01)
             worker.notify()
-            time.sleep(0.01)
-        assert 1 <= len(calls) <= 4
+        worker.wake()
+        assert worker.wait(first, 10.0)
+        assert calls and calls[0] >= MAX_DELAY_FACTOR * 0.05 - 1e-9
     finally:
         worker.stop()
 
 
 def test_request_now_and_wait():
-    worker, calls, _, _ = counting_worker(30.0)
+    worker, calls, _ = counting_worker(30.0, FakeClock())
     try:
         ticket = worker.request_now()
-        assert worker.wait(ticket, 5.0)
-        assert len(calls) == 1
+        assert worker.wait(ticket, 10.0)
+        assert calls == [0.0]
     finally:
         worker.stop()
 
@@ -65,61 +140,10 @@ def test_an_exception_in_rebuild_is_reported_and_the_thread_goes_on():
         if len(calls) == 1:
             raise RuntimeError("boom")
 
-    worker = RecomputeWorker(rebuild, lambda: 0.0, errors.append)
+    worker = RecomputeWorker(rebuild, lambda: 0.0, errors.append, FakeClock())
     try:
-        assert worker.wait(worker.request_now(), 5.0)
-        assert worker.wait(worker.request_now(), 5.0)
+        assert worker.wait(worker.request_now(), 10.0)
+        assert worker.wait(worker.request_now(), 10.0)
         assert len(calls) == 2 and [str(e) for e in errors] == ["boom"]
     finally:
         worker.stop()
-
-
-def test_build_state_needs_min_fiducials_and_reports_core_errors():
-    settings = Settings.from_mapping({"min_fiducials": 4})
-    acc = FiducialAccumulator(3, "tracker", "world", 0.001, 0.0)
-    for k in range(3):
-        acc.add(f"f{k}", [k, 0, 0], [k, 0, 0])
-    state = build_state(acc.fiducial_set(), settings, 5)
-    assert state.model is None and "3 enabled fiducials, need min_fiducials=4" in state.error
-    acc.add("f3", [3, 0, 0], [3, 0, 0])   # collinear: the core refuses
-    state = build_state(acc.fiducial_set(), settings, 6)
-    assert state.model is None and state.error.startswith("model not built:")
-    assert state.n_measurements == 4 and state.stamp_ns == 6
-
-
-def test_build_state_builds_a_model():
-    rng = np.random.default_rng(0)
-    acc = FiducialAccumulator(3, "tracker", "world", 0.001, 0.0)
-    grid = np.array([[x, y, z] for x in (0, .3, .6) for y in (0, .3) for z in (0, .2)], float)
-    for k, p in enumerate(grid):
-        acc.add(f"f{k}", p + rng.normal(0, 1e-3, 3), p + 1.0)
-    settings = Settings.from_mapping({"sigma": 1e-4})
-    state = build_state(acc.fiducial_set(), settings, 1)
-    assert state.error == "" and state.model.ids == acc.fiducial_set().ids
-    assert state.model.sigma_source == "given"
-    assert model_config(Settings.from_mapping({})).sigma is None
-
-
-def test_guards_answer_and_log_unexpected_errors():
-    from rbc_registration.ros.guards import guard_input, guard_service
-
-    class Log:
-        def __init__(self):
-            self.lines = []
-
-        def error(self, line):
-            self.lines.append(line)
-
-    class Response:
-        success, message = True, ""
-
-    log = Log()
-
-    def broken(*_):
-        raise RuntimeError("bug")
-
-    response = guard_service(log, "~/correct_target", broken)(None, Response())
-    assert not response.success and response.message == "internal error: bug"
-    guard_input(log, "~/fiducial_pairs", broken)(object())
-    assert log.lines == ["~/correct_target failed: RuntimeError: bug",
-                         "~/fiducial_pairs: message dropped: RuntimeError: bug"]

@@ -1,5 +1,7 @@
 """Helpers of the ROS tests: a small synthetic cell in metres, the expected answers from the core
-library on the same data, and an rclpy harness (own Context, executor thread, client node).
+library on the same data, an rclpy harness (own Context, executor thread, client node) with a
+base class that gives each test class its own, and node processes
+(:mod:`rbc_registration.ros.process`) with the tests' defaults.
 
 Imported by the tests and by the helper scripts run as separate processes. The rclpy parts are
 imported lazily so that ``make_cell`` / ``expected_model`` stay usable without ROS.
@@ -15,8 +17,12 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from rbc_registration.core.accumulator import FiducialAccumulator
-from rbc_registration.ros.params import Settings
-from rbc_registration.ros.worker import build_state
+from rbc_registration.pipeline.settings import Settings
+from rbc_registration.pipeline.state import build_state
+from rbc_registration.ros.process import start_node, stop_process
+
+__all__ = ["RosHarness", "RosTestBase", "answer_key", "expected_state", "make_cell",
+           "pair_msg", "point_xyz", "start_test_node", "stop_process", "target_msg", "wait_for"]
 
 WORKING_FRAME = "tracker"
 DESTINATION_FRAME = "world"
@@ -132,6 +138,35 @@ class RosHarness:
         self._thread.join(timeout=10.0)
         self.client.destroy_node()
         rclpy.shutdown(context=self.context)
+
+
+class RosTestBase:
+    """Base of the in-process ROS test classes: one :class:`RosHarness` (own Context) per class,
+    as ``cls.ros``, stopped after the class's last test."""
+
+    ros: RosHarness
+
+    @classmethod
+    def setup_class(cls) -> None:
+        cls.ros = RosHarness()
+
+    @classmethod
+    def teardown_class(cls) -> None:
+        cls.ros.stop()
+
+
+#: The tests' node processes recompute quickly.
+TEST_NODE_PARAMS = {"debounce_period": 0.05}
+
+
+def start_test_node(name: str, state_dir: Any = None, log: Any = None, **options: Any):
+    """:func:`rbc_registration.ros.process.start_node` with the tests' parameters
+    (``debounce_period:=0.05``, ``state_dir`` when given); keyword arguments that are not
+    options of ``start_node`` are node parameters."""
+    keys = ("env", "ros_args", "command", "popen")
+    params = {**TEST_NODE_PARAMS, **({"state_dir": state_dir} if state_dir else {}),
+              **{k: v for k, v in options.items() if k not in keys}}
+    return start_node(name, params, log=log, **{k: v for k, v in options.items() if k in keys})
 
 
 def pair_msg(cell: dict[str, np.ndarray], k: int, with_id: bool = True, stamp_s: float = 0.0,

@@ -28,7 +28,7 @@ from rbc_registration_interfaces.msg import FiducialPair  # noqa: E402
 from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets,  # noqa: E402
                                              SetFiducialEnabled)
 
-from ros_helpers import (RosHarness, answer_key, make_cell, pair_msg, target_msg,  # noqa: E402
+from ros_helpers import (RosTestBase, answer_key, make_cell, pair_msg, target_msg,  # noqa: E402
                          wait_for)
 
 pytestmark = pytest.mark.ros
@@ -78,11 +78,11 @@ BAD_PARAMETERS = [
 ]
 
 
-class TestNodeBadInput:
+class TestNodeBadInput(RosTestBase):
 
     @classmethod
     def setup_class(cls):
-        cls.ros = RosHarness()
+        super().setup_class()
         cls.cell = make_cell()
         cls.n = len(cls.cell["fid"])
         cls.name = f"reg_bad_input_{os.getpid()}"
@@ -106,7 +106,7 @@ class TestNodeBadInput:
     @classmethod
     def teardown_class(cls):
         cls.ros.remove(cls.node)
-        cls.ros.stop()
+        super().teardown_class()
 
     # -- helpers ------------------------------------------------------------------------------
     @classmethod

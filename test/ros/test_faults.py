@@ -11,8 +11,8 @@ import os
 import resource
 import signal
 import subprocess
+import sys
 import threading
-import time
 
 import pytest
 
@@ -23,11 +23,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair  # noqa: E402
 from rbc_registration_interfaces.srv import CorrectTarget  # noqa: E402
 
-from rbc_registration.ros.persistence import Journal  # noqa: E402
-from rbc_registration.ros.snapshot import PAUSE_ENV, SNAPSHOT_NAME, read_snapshot  # noqa: E402
-from ros_helpers import RosHarness, make_cell, pair_msg, target_msg, wait_for  # noqa: E402
+from rbc_registration.pipeline.journal import Journal  # noqa: E402
+from rbc_registration.pipeline.snapshot import SNAPSHOT_NAME, read_snapshot  # noqa: E402
+from ros_helpers import (RosTestBase, make_cell, pair_msg, start_test_node,  # noqa: E402
+                         stop_process, target_msg, wait_for)
 from test_node_process import (check_answers, expected_answers, process_answers,  # noqa: E402
-                               start_node, status_sub, stop)
+                               status_sub)
 
 pytestmark = pytest.mark.ros
 HEADER = {"working_frame": "tracker", "destination_frame": "world", "dimension": 3}
@@ -81,15 +82,12 @@ def journal_indices(state_dir):
     return [round(r.stamp_s - 100.0) for r in records], warnings
 
 
-class TestFaults:
+#: registration_node whose snapshot writes pause half way (a writer injected into the node).
+PAUSED_NODE = (sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                                            "paused_snapshot_node.py"))
 
-    @classmethod
-    def setup_class(cls):
-        cls.ros = RosHarness()
 
-    @classmethod
-    def teardown_class(cls):
-        cls.ros.stop()
+class TestFaults(RosTestBase):
 
     def publish(self, pub, cell, indices):
         for k in indices:
@@ -105,23 +103,24 @@ class TestFaults:
         statuses, sub = status_sub(self.ros, name)
         pub = self.ros.client.create_publisher(FiducialPair, f"/{name}/fiducial_pairs", 1000)
         log = open(tmp_path / "node.log", "w")
-        node = start_node(name, state_dir, log, status_period=0.05)
+        node = start_test_node(name, state_dir, log, status_period=0.05)
         try:
             # 1. Half the pairs, a model and a complete snapshot of it; a clean stop.
             wait_for(lambda: pub.get_subscription_count() > 0, 30, "the node's subscription")
             self.publish(pub, cell, range(half))
             wait_for(lambda: statuses and statuses[-1].n_measurements == half, 30, "half")
             process_answers(self.ros, name, cell)
-            stop(node)
+            stop_process(node)
             assert read_snapshot(str(snapshot))["n_measurements"] == half
 
-            # 2. Restart with the test hook: the rebuild after restoring the journal pauses half
-            #    way through writing the snapshot's temporary file. Meanwhile the node keeps
-            #    accepting (and journaling) the other half and answering targets.
+            # 2. Restart with a snapshot writer that pauses: the rebuild after restoring the
+            #    journal stops half way through writing the snapshot's temporary file.
+            #    Meanwhile the node keeps accepting (and journaling) the other half and
+            #    answering targets.
             marker = tmp_path / "paused"
             statuses.clear()
-            node = start_node(name, state_dir, log, env={PAUSE_ENV: str(marker)},
-                              status_period=0.05)
+            node = start_test_node(name, state_dir, log, command=(*PAUSED_NODE, str(marker)),
+                                   status_period=0.05)
             wait_for(marker.exists, 30, "the snapshot write to pause")
             wait_for(lambda: pub.get_subscription_count() > 0, 30, "the node's subscription")
             self.publish(pub, cell, range(half, n))
@@ -143,7 +142,7 @@ class TestFaults:
             # 3. Restart: both files are set aside with a warning; the model comes from the
             #    journal, with every acknowledged measurement: the model of all n pairs.
             statuses.clear()
-            node = start_node(name, state_dir, log, status_period=0.05)
+            node = start_test_node(name, state_dir, log, status_period=0.05)
             wait_for(lambda: statuses and statuses[-1].model_valid
                      and statuses[-1].n_measurements == n, 30, "the restored model")
             check_answers(process_answers(self.ros, name, cell), expected_answers(cell))
@@ -152,7 +151,7 @@ class TestFaults:
             assert not os.path.exists(tmp)
             assert [f for f in os.listdir(state_dir) if ".tmp." in f] == []
         finally:
-            stop(node)
+            stop_process(node)
             log.close()
             self.ros.client.destroy_subscription(sub)
             self.ros.client.destroy_publisher(pub)
@@ -187,7 +186,7 @@ class TestFaults:
         try:
             # 1. The disk fills up while the pairs stream in: those that cannot be journaled
             #    are not accepted, and the node says so.
-            node = start_node(name, state_dir, ros_args=["--disable-external-lib-logs"],
+            node = start_test_node(name, state_dir, ros_args=["--disable-external-lib-logs"],
                               popen=popen, status_period=0.05)
             log.start(node)
             wait_for(lambda: pub.get_subscription_count() > 0, 30, "the node's subscription")
@@ -222,7 +221,7 @@ class TestFaults:
             accepted, warnings = journal_indices(state_dir)
             assert warnings == [] and len(accepted) == acknowledged
             statuses.clear()
-            node = start_node(name, state_dir, ros_args=["--disable-external-lib-logs"],
+            node = start_test_node(name, state_dir, ros_args=["--disable-external-lib-logs"],
                               popen={"stdout": subprocess.PIPE}, status_period=0.05)
             log.start(node)
             wait_for(lambda: statuses and statuses[-1].model_valid, 30, "the restored model")
@@ -240,7 +239,7 @@ class TestFaults:
             assert statuses[-1].n_journal_failures == 0
         finally:
             if node is not None:
-                stop(node)
+                stop_process(node)
                 log.join()
             log.close()
             self.ros.client.destroy_subscription(sub)

@@ -24,40 +24,13 @@ from std_srvs.srv import Trigger  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
 from rbc_registration_interfaces.srv import CorrectTarget  # noqa: E402
 
-from ros_helpers import (RosHarness, answer_key, expected_state, make_cell,  # noqa: E402
-                         pair_msg, target_msg, wait_for)
+from ros_helpers import (RosTestBase, answer_key, expected_state, make_cell,  # noqa: E402
+                         pair_msg, start_test_node, stop_process, target_msg, wait_for)
 
 pytestmark = pytest.mark.ros
 HERE = os.path.dirname(os.path.abspath(__file__))
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-def start_node(name, state_dir=None, log=None, env=None, ros_args=(), popen=None, **params):
-    """``python -m rbc_registration.ros.node`` with a node name and parameters.
-
-    :param env: extra environment variables; :param ros_args: extra ``--ros-args`` arguments;
-    :param popen: extra ``subprocess.Popen`` arguments (e.g. ``preexec_fn``, ``stdout``).
-    """
-    args = [sys.executable, "-m", "rbc_registration.ros.node", "--ros-args", "-r",
-            f"__node:={name}", "-p", "debounce_period:=0.05", *ros_args]
-    if state_dir:
-        args += ["-p", f"state_dir:={state_dir}"]
-    for key, value in params.items():
-        args += ["-p", f"{key}:={value}"]
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", **(env or {}))
-    kwargs = {"stdout": log or subprocess.DEVNULL, "stderr": subprocess.STDOUT, **(popen or {})}
-    return subprocess.Popen(args, env=env, **kwargs)
-
-
-def stop(proc, sig=signal.SIGINT):
-    if proc.poll() is None:
-        proc.send_signal(sig)
-        try:
-            proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def expected_answers(cell, indices=None):
@@ -97,7 +70,7 @@ def test_separate_client_process_streams_pairs_and_corrects_targets(tmp_path):
     np.savez(tmp_path / "cell.npz", **cell)
     name = f"reg_proc_{os.getpid()}"
     with open(tmp_path / "node.log", "w") as log:
-        node = start_node(name, log=log)
+        node = start_test_node(name, log=log)
         try:
             client = subprocess.run(
                 [sys.executable, os.path.join(HERE, "stream_client.py"), name,
@@ -106,7 +79,7 @@ def test_separate_client_process_streams_pairs_and_corrects_targets(tmp_path):
                 capture_output=True, text=True, timeout=120)
             assert client.returncode == 0, client.stdout + client.stderr
         finally:
-            stop(node)
+            stop_process(node)
     answers = json.loads((tmp_path / "answers.json").read_text())
     check_answers(answers, expected_answers(cell))
     assert node.returncode == 0, (tmp_path / "node.log").read_text()
@@ -114,21 +87,13 @@ def test_separate_client_process_streams_pairs_and_corrects_targets(tmp_path):
 
 def test_a_bad_parameter_stops_the_node_with_a_reason(tmp_path):
     with open(tmp_path / "node.log", "w") as log:
-        proc = start_node(f"reg_bad_{os.getpid()}", log=log, dimension=4)
+        proc = start_test_node(f"reg_bad_{os.getpid()}", log=log, dimension=4)
         assert proc.wait(timeout=60) == 1
     assert "cannot start" in (tmp_path / "node.log").read_text()
 
 
-class TestKillAndRestart:
+class TestKillAndRestart(RosTestBase):
     """The test process is the client; the node is a subprocess killed with SIGKILL."""
-
-    @classmethod
-    def setup_class(cls):
-        cls.ros = RosHarness()
-
-    @classmethod
-    def teardown_class(cls):
-        cls.ros.stop()
 
     def status_sub(self, name):
         return status_sub(self.ros, name)
@@ -142,7 +107,7 @@ class TestKillAndRestart:
         state_dir = tmp_path / "state"
         name = f"reg_kill_{os.getpid()}"
         log = open(tmp_path / "node.log", "w")
-        node = start_node(name, state_dir, log, status_period=0.02)
+        node = start_test_node(name, state_dir, log, status_period=0.02)
         statuses, sub = self.status_sub(name)
         pub = self.ros.client.create_publisher(FiducialPair, f"/{name}/fiducial_pairs", 1000)
         try:
@@ -161,7 +126,7 @@ class TestKillAndRestart:
 
             # Restart: every measurement the node had acknowledged is back.
             statuses.clear()
-            node = start_node(name, state_dir, log)
+            node = start_test_node(name, state_dir, log)
             wait_for(lambda: statuses and statuses[-1].model_valid, 30, "restored model")
             restored = statuses[-1].n_measurements
             print(f"published {published}, acknowledged {acknowledged}, restored {restored}")
@@ -180,12 +145,12 @@ class TestKillAndRestart:
             node.send_signal(signal.SIGKILL)
             node.wait(timeout=15)
             statuses.clear()
-            node = start_node(name, state_dir, log)
+            node = start_test_node(name, state_dir, log)
             wait_for(lambda: statuses and statuses[-1].model_valid
                      and statuses[-1].n_measurements == n, 30, "restored model")
             assert self.answers(name, cell) == full_answers
         finally:
-            stop(node)
+            stop_process(node)
             log.close()
             self.ros.client.destroy_subscription(sub)
             self.ros.client.destroy_publisher(pub)

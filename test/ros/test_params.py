@@ -1,76 +1,11 @@
-"""Parameter table and validation of registration_node (pure: no rclpy)."""
+"""The settings as ROS parameters of registration_node: declare, the reason for a wrong ROS
+type, and the API reference (pure: no rclpy)."""
 
-import math
 import os
 import re
 
-import pytest
-
+from rbc_registration.pipeline.settings import SPECS
 from rbc_registration.ros import params
-from rbc_registration.ros.params import SPECS, Settings, corrections_applied, validate, validate_one
-
-
-def test_defaults_are_valid_and_cover_every_setting():
-    s = Settings.from_mapping({})
-    assert set(SPECS) == set(Settings.__dataclass_fields__)
-    assert s.dimension == 3 and s.apply_corrections == "auto" and s.sigma == 0.0
-    for name, spec in SPECS.items():
-        assert validate_one(name, spec.default) is None, name
-        assert spec.description
-
-
-@pytest.mark.parametrize("name, value, match", [
-    ("dimension", 4, r"dimension must be in \[2, 3\]"),
-    ("dimension", 2.0, "dimension must be an integer"),
-    ("restoration", "magic", "restoration must be one of iterative, closed-form"),
-    ("restoration_steps", 0, "restoration_steps must be in"),
-    ("interpolation", "linear", "interpolation must be one of paper, kriging"),
-    ("sigma", -1e-3, "sigma must be in"),
-    ("sigma", math.nan, "sigma must be finite"),
-    ("rho_apply", -1.0, "rho_apply must be in"),
-    ("apply_corrections", "maybe", "apply_corrections must be one of auto, on, off"),
-    ("min_fiducials", 2, "min_fiducials must be in"),
-    ("pair_slop", 0.0, r"pair_slop must be in \(0, 10\]"),
-    ("merge_radius", 0.0, r"merge_radius must be in \(0"),
-    ("outlier_distance", -0.1, "outlier_distance must be in"),
-    ("debounce_period", 61.0, "debounce_period must be in"),
-    ("working_frame", "", "working_frame must be a non-empty frame id"),
-    ("destination_frame", "/world", "without a leading '/'"),
-    ("journal_fsync", 1, "journal_fsync must be a bool"),
-    ("state_dir", 3, "state_dir must be a string"),
-    ("sigma", True, "sigma must be a number"),
-    ("bogus", 1, "unknown parameter 'bogus'"),
-])
-def test_each_rule_rejects_with_a_reason(name, value, match):
-    error = validate_one(name, value)
-    assert error is not None
-
-    assert re.search(match, error), error
-
-
-def test_rho_thresholds_must_be_ordered():
-    s = Settings.from_mapping({})
-    with pytest.raises(ValueError, match=r"rho_reject \(3\) must be <= rho_apply \(2.5\)"):
-        s.replace(rho_reject=3.0)
-    assert s.replace(rho_reject=3.0, rho_apply=4.0).rho_reject == 3.0
-    assert validate({"rho_reject": 1.0, "rho_apply": 1.0}) is None
-
-
-def test_replace_returns_a_new_validated_snapshot():
-    s = Settings.from_mapping({"sigma": 1e-4})
-    t = s.replace(interpolation="kriging")
-    assert s.interpolation == "paper" and t.interpolation == "kriging" and t.sigma == 1e-4
-    with pytest.raises(ValueError, match="interpolation"):
-        s.replace(interpolation="nearest")
-
-
-@pytest.mark.parametrize("mode, recommendation, applied", [
-    ("auto", "apply", True), ("auto", "uncertain", False), ("auto", "do_not_apply", False),
-    ("auto", "unknown", False), ("on", "do_not_apply", True), ("on", "unknown", True),
-    ("off", "apply", False),
-])
-def test_corrections_applied_follows_the_rho_rule_unless_forced(mode, recommendation, applied):
-    assert corrections_applied(mode, recommendation) is applied
 
 
 def test_params_module_does_not_need_rclpy_to_validate():
@@ -78,18 +13,6 @@ def test_params_module_does_not_need_rclpy_to_validate():
 
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-def test_config_file_lists_every_parameter_with_a_valid_value():
-    yaml = pytest.importorskip("yaml")
-    with open(os.path.join(ROOT, "config", "registration_node.yaml")) as f:
-        values = yaml.safe_load(f)["/**"]["ros__parameters"]
-    values.pop("use_sim_time")
-    assert set(values) == set(SPECS)
-    settings = Settings.from_mapping(values)
-    for name, value in values.items():
-        assert type(value) is type(SPECS[name].default), name   # ROS types must match
-    assert settings.state_dir
 
 
 def test_api_reference_documents_every_parameter_topic_and_service():

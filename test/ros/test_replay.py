@@ -21,32 +21,21 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from rbc_registration import cli
+from rbc_registration.ros.process import stop_process
+from ros_helpers import start_test_node, wait_for
 
 NAME = f"replay_node_{os.getpid()}"
 ENV = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
 
 
 def start_node(state_dir, log):
-    args = [sys.executable, "-m", "rbc_registration.ros.node", "--ros-args", "-r",
-            f"__node:={NAME}", "-p", "dimension:=2", "-p", f"state_dir:={state_dir}",
-            "-p", "debounce_period:=0.05"]
-    return subprocess.Popen(args, env=ENV, stdout=log, stderr=subprocess.STDOUT)
+    return start_test_node(NAME, state_dir, log, dimension=2)
 
 
 def replay_process(bag, *options):
     return subprocess.Popen([sys.executable, "-m", "rbc_registration.cli", "replay", str(bag),
                              "--quiet", *options], env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-
-
-def stop(proc):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 @pytest.fixture(scope="module")
@@ -64,15 +53,15 @@ def cell_bag(tmp_path_factory):
 
 # -- live -----------------------------------------------------------------------------------------
 @pytest.mark.ros
-def test_replayed_bag_gives_the_model_of_evaluate(tmp_path, cell_bag):
+def test_replayed_bag_gives_the_model_of_evaluate(tmp_path, cell_bag, ros_harness):
     pytest.importorskip("rbc_registration_interfaces.msg")
     from geometry_msgs.msg import PointStamped
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    from rbc_registration.io.bag import Topics, read_bag
+    from rbc_registration.io.bag.reader import read_bag
+    from rbc_registration.io.bag.records import Topics
     from rbc_registration_interfaces.msg import RegistrationStatus
     from rbc_registration_interfaces.srv import CorrectTargets
-    from ros_helpers import RosHarness, wait_for
 
     bag, report = cell_bag
     contents = read_bag(bag, Topics.for_node(NAME), progress=False)
@@ -80,7 +69,7 @@ def test_replayed_bag_gives_the_model_of_evaluate(tmp_path, cell_bag):
     latest = {}
     with open(tmp_path / "node.log", "w") as log:
         node = start_node(tmp_path / "state", log)
-        harness = RosHarness()
+        harness = ros_harness
         try:
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -106,8 +95,7 @@ def test_replayed_bag_gives_the_model_of_evaluate(tmp_path, cell_bag):
                 request.targets.append(t)
             response = harness.call(CorrectTargets, f"/{NAME}/correct_targets", request)
         finally:
-            harness.stop()
-            stop(node)
+            stop_process(node)
     assert status.n_fiducials == report["n_fiducials"] and status.n_rejected == 0
     assert status.dimension == 2 and status.recommendation == report["recommendation"]
     assert status.rho == pytest.approx(report["rho"], rel=1e-12)
@@ -124,12 +112,11 @@ def test_replayed_bag_gives_the_model_of_evaluate(tmp_path, cell_bag):
 
 
 @pytest.mark.ros
-def test_rate_scales_timing_and_loop_stops_on_ctrl_c(cell_bag):
+def test_rate_scales_timing_and_loop_stops_on_ctrl_c(cell_bag, ros_harness):
     pytest.importorskip("rbc_registration_interfaces.msg")
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from rbc_registration_interfaces.msg import FiducialPair
-    from ros_helpers import RosHarness, wait_for
 
     bag, report = cell_bag
     n, rate = report["n_measurements"], 25.0
@@ -140,7 +127,8 @@ def test_rate_scales_timing_and_loop_stops_on_ctrl_c(cell_bag):
         with lock:
             arrivals.append(time.monotonic())
 
-    harness = RosHarness()
+    harness = ros_harness
+    player = None
     try:
         harness.client.create_subscription(FiducialPair, f"/{NAME}/fiducial_pairs", on_pair,
                                            QoSProfile(depth=5000,
@@ -150,10 +138,7 @@ def test_rate_scales_timing_and_loop_stops_on_ctrl_c(cell_bag):
         player.send_signal(signal.SIGINT)
         out, err = player.communicate(timeout=30)
     finally:
-        harness.stop()
-        if player.poll() is None:
-            player.kill()
-            player.wait()
+        stop_process(player, signal.SIGKILL, timeout=0)
     assert player.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     recorded_span = (n - 1) * 0.02  # synth-bag: measurements 20 ms apart
@@ -164,7 +149,7 @@ def test_rate_scales_timing_and_loop_stops_on_ctrl_c(cell_bag):
 def test_demo_agrees_with_evaluate_and_leaves_no_process(tmp_path):
     pytest.importorskip("rbc_registration_interfaces.msg")
     out = tmp_path / "demo_out"
-    done = subprocess.run([sys.executable, "-m", "rbc_registration.demo", "--out", str(out)],
+    done = subprocess.run([sys.executable, "-m", "rbc_registration.ros.demo", "--out", str(out)],
                           env=ENV, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "-> agree" in done.stdout and "decision: apply" in done.stdout

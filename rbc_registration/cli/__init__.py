@@ -1,0 +1,47 @@
+"""The ``rbc-registration`` command: one parser, one module per subcommand (:mod:`.register`,
+:mod:`.reproduce`, :mod:`.evaluate`, :mod:`.replay`, :mod:`.synth_bag`).
+
+Building the parser imports only the standard library and the numpy-free constants
+(:mod:`rbc_registration.core.constants`, :mod:`rbc_registration.io.bag.records`); each
+subcommand imports what it needs when it runs, so ``rbc-registration --help`` is instant.
+Errors in the input end the command with a one-line message naming what was wrong (exit 2),
+never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Optional, Sequence
+
+from ..runtime import default_one_blas_thread
+from . import evaluate, register, replay, reproduce, synth_bag
+
+SUBCOMMANDS = (register, reproduce, evaluate, replay, synth_bag)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="rbc-registration",
+        description="Rigid registration from fiducial pairs, improved by restoring the "
+                    "rigid-body condition (NISTIR 8180).")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for module in SUBCOMMANDS:
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of the console script; returns the exit code.
+
+    Defaults BLAS to one thread before any subcommand imports numpy
+    (:mod:`rbc_registration.runtime`).
+    """
+    default_one_blas_thread()
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, OSError) as exc:   # bad input: one clear line, no traceback
+        print(f"rbc-registration {args.command}: error: {exc}", file=sys.stderr)
+        return 2

@@ -1,0 +1,72 @@
+"""``rbc-registration register``: register from a FIDUCIALS.csv, correct targets, report."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+from .options import add_model_options, name_list
+
+
+def add_parser(sub: Any) -> None:
+    """Add ``register`` to the subparsers of ``rbc-registration``."""
+    reg = sub.add_parser("register", help="register from a FIDUCIALS.csv (and correct targets)")
+    reg.add_argument("fiducials", type=Path, help="CSV: id,wx,wy,wz,dx,dy,dz (2D: no wz,dz)")
+    reg.add_argument("--targets", type=Path, help="CSV: id,wx,wy,wz[,dx,dy,dz]")
+    add_model_options(reg, "default: 3 if the file has z", "noise sigma of one measurement (RMS "
+                      "over all axes); default: from repeated rows", defaults=True)
+    reg.add_argument("--loo", action="store_true",
+                     help="leave-one-out accuracy estimate over the fiducials")
+    ids = name_list("fiducial ids")
+    reg.add_argument("--uncorrected-fit", type=ids, metavar="IDS",
+                     help="fit the uncorrected registration to these fiducial ids only")
+    reg.add_argument("--corrected-fit", type=ids, metavar="IDS",
+                     help="fit the corrected registration to these fiducial ids only")
+    reg.add_argument("--unit", default="mm", help="unit of the file, used as a label (default mm)")
+    reg.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
+    reg.set_defaults(func=run)
+
+
+def model_config(args: argparse.Namespace, dimension: int,
+                 ids: Optional[Sequence[str]] = None) -> Any:
+    """The core ``ModelConfig`` from the model options (and fiducial-id subsets).
+
+    :raises ValueError: naming an unknown fiducial id of a subset.
+    """
+    from ..core.model import ModelConfig
+
+    def indices(subset: Optional[Sequence[str]], name: str) -> Optional[tuple[int, ...]]:
+        if not subset:
+            return None
+        missing = [s for s in subset if s not in ids]
+        if missing:
+            raise ValueError(f"{name}: unknown fiducial id(s) {', '.join(missing)}")
+        return tuple(list(ids).index(s) for s in subset)
+
+    return ModelConfig(dimension=dimension, restoration=args.restoration, steps=args.steps,
+                       interpolation=args.interpolation, sigma=args.sigma,
+                       uncorrected_subset=indices(args.uncorrected_fit, "--uncorrected-fit"),
+                       corrected_subset=indices(args.corrected_fit, "--corrected-fit"))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the report, write JSON."""
+    from ..core.evaluation import leave_one_out
+    from ..core.model import build_model
+    from ..io.csv_io import read_fiducials, read_targets
+    from ..io.report import format_report, model_report, write_json
+
+    fid = read_fiducials(args.fiducials, args.dim)
+    cfg = model_config(args, fid.dimension, fid.ids)
+    model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
+                        working_repeats=fid.working_repeats)
+    tgt = read_targets(args.targets, fid.dimension) if args.targets else None
+    loo = leave_one_out(model) if args.loo else None
+    report = model_report(model, tgt.ids if tgt else (), tgt.working if tgt else None,
+                          tgt.destination if tgt else None, loo, args.unit)
+    print(format_report(report))
+    if args.json:
+        write_json(report, args.json)
+        print(f"wrote {args.json}")
+    return 0

@@ -1,0 +1,180 @@
+"""Reading registration bags with ``rosbags`` (no rclpy): the node's inputs and the targets
+(:func:`read_bag`, decoded) or every message as recorded (:func:`read_raw`, serialized).
+
+Every problem with a bag (missing, malformed, truncated, an unknown topic, a type without a
+definition) raises :class:`~.records.BagError` with a message naming the bag and what was wrong.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+import struct
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator, Optional, Sequence, Union
+
+from rosbags.rosbag2 import Reader, ReaderError
+from rosbags.serde import SerdeError
+from rosbags.typesys import TypesysError
+
+from ...core.constants import DESTINATION, WORKING
+from ..progress import Progress
+from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
+                      PairMessage, PointMessage, RawMessage, Topics)
+from .typestore import check_definitions, make_typestore
+
+#: Errors of rosbags and of the storage libraries on a bad or truncated file.
+_READ_ERRORS = (ReaderError, SerdeError, TypesysError, sqlite3.Error, struct.error, OSError,
+                EOFError, KeyError, IndexError, ValueError, UnicodeDecodeError, AssertionError)
+
+
+@contextmanager
+def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
+    """Open a rosbag2 directory, ``.mcap`` or ``.db3`` file for reading.
+
+    :raises BagError: when it does not exist or cannot be opened.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise BagError(f"bag {p}: no such file or directory")
+    if p.is_dir() and not (p / "metadata.yaml").is_file():
+        raise BagError(f"bag {p}: not a rosbag2 directory (no metadata.yaml)")
+    try:
+        reader = Reader(p)
+        reader.open()
+    except _READ_ERRORS as exc:
+        raise BagError(f"bag {p}: cannot open (truncated or corrupt?): {_describe(exc)}") from None
+    try:
+        yield reader
+    finally:
+        try:
+            reader.close()
+        except _READ_ERRORS:
+            pass
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc) or type(exc).__name__
+    return text if isinstance(exc, (ReaderError, BagError)) else f"{type(exc).__name__}: {text}"
+
+
+def topic_types(reader: Reader) -> dict[str, str]:
+    """``{topic: type}`` of an open bag (a topic with several types is an error)."""
+    out: dict[str, str] = {}
+    for conn in reader.connections:
+        if out.setdefault(conn.topic, conn.msgtype) != conn.msgtype:
+            raise BagError(f"bag {reader.path}: topic {conn.topic} has several types "
+                           f"({out[conn.topic]}, {conn.msgtype})")
+    return out
+
+
+def _stamp(header: Any) -> float:
+    return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+def _xyz(p: Any) -> tuple[float, float, float]:
+    return (float(p.x), float(p.y), float(p.z))
+
+
+def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
+             required: Sequence[str] = (), progress: bool = True) -> BagContents:
+    """Read the node's inputs and the targets from a bag.
+
+    :param path: bag directory, ``.mcap`` or ``.db3`` file.
+    :param topics: the topic names to read.
+    :param required: topics that must be in the bag (e.g. the ones named on the command line).
+    :param progress: show progress on stderr.
+    :return: :class:`BagContents`.
+    :raises BagError: when the bag cannot be read, a required topic is missing, a topic has the
+        wrong type, the bag holds none of the input topics, or only one of the point topics.
+    """
+    expected = {topics.fiducial_pairs: FIDUCIAL_PAIR, topics.working_point: POINT_STAMPED,
+                topics.destination_point: POINT_STAMPED, topics.targets: FIDUCIAL_PAIR}
+    store = make_typestore()
+    with open_bag(path) as reader:
+        types = topic_types(reader)
+        listing = ", ".join(f"{t} [{ty}]" for t, ty in sorted(types.items())) or "none"
+        for topic in required:
+            if topic not in types:
+                raise BagError(f"bag {path}: no topic {topic} (topics in the bag: {listing})")
+        for topic, want in expected.items():
+            if topic in types and types[topic] != want:
+                raise BagError(f"bag {path}: topic {topic} has type {types[topic]}, "
+                               f"expected {want}")
+        inputs = [t for t in topics[:3] if t in types]
+        if not inputs:
+            raise BagError(f"bag {path}: none of the input topics {', '.join(topics[:3])} "
+                           f"(topics in the bag: {listing}); name them with --fiducial-topic, "
+                           "--working-topic, --destination-topic")
+        points = [t for t in topics[1:3] if t in types]
+        if len(points) == 1:
+            missing = set(topics[1:3]) - set(points)
+            raise BagError(f"bag {path}: has {points[0]} but not {missing.pop()}: points cannot "
+                           "be paired")
+        wanted = [t for t in expected if t in types]
+        check_definitions(reader, store, wanted)
+        conns = [c for c in reader.connections if c.topic in wanted]
+        bar = Progress(f"reading {Path(path).name}", sum(c.msgcount for c in conns),
+                       enabled=progress)
+        counts = {t: 0 for t in wanted}
+        ins: list[Union[PairMessage, PointMessage]] = []
+        tgts: list[PairMessage] = []
+        k = 0
+        try:
+            for conn, log_ns, raw in reader.messages(conns):
+                k += 1
+                try:
+                    msg = store.deserialize_cdr(raw, conn.msgtype)
+                except Exception as exc:  # noqa: BLE001 - any decoding failure of bag data
+                    raise BagError(f"bag {path}: message {k} on {conn.topic} cannot be decoded "
+                                   f"as {conn.msgtype}: {_describe(exc)}") from None
+                counts[conn.topic] += 1
+                if conn.topic in (topics.fiducial_pairs, topics.targets):
+                    pair = PairMessage(log_ns, _stamp(msg.header), msg.fiducial_id,
+                                       _xyz(msg.working_point), msg.header.frame_id,
+                                       _xyz(msg.destination_point), msg.destination_frame_id)
+                    (ins if conn.topic == topics.fiducial_pairs else tgts).append(pair)
+                else:
+                    stream = WORKING if conn.topic == topics.working_point else DESTINATION
+                    ins.append(PointMessage(log_ns, stream, _xyz(msg.point),
+                                            msg.header.frame_id, _stamp(msg.header)))
+                bar.update()
+        except _READ_ERRORS as exc:
+            raise BagError(f"bag {path}: truncated or corrupt after {k} message(s): "
+                           f"{_describe(exc)}") from None
+        bar.done()
+    other = {t: ty for t, ty in types.items() if t not in expected}
+    return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other)
+
+
+def read_raw(path: Union[str, Path], topics: Optional[Sequence[str]] = None,
+             progress: bool = True) -> list[RawMessage]:
+    """All messages of ``topics`` (default: every topic) in receive-time order, serialized.
+
+    :raises BagError: when the bag cannot be read, a named topic is missing or a type has no
+        definition or another definition than this installation's.
+    """
+    store = make_typestore()
+    with open_bag(path) as reader:
+        types = topic_types(reader)
+        if topics:
+            missing = [t for t in topics if t not in types]
+            if missing:
+                raise BagError(f"bag {path}: no topic {', '.join(missing)} (topics in the bag: "
+                               + (", ".join(sorted(types)) or "none") + ")")
+        wanted = list(topics) if topics else list(types)
+        check_definitions(reader, store, wanted, strict=False)
+        conns = [c for c in reader.connections if c.topic in wanted]
+        bar = Progress(f"reading {Path(path).name}", sum(c.msgcount for c in conns),
+                       enabled=progress)
+        out: list[RawMessage] = []
+        try:
+            for conn, log_ns, raw in reader.messages(conns):
+                out.append(RawMessage(conn.topic, conn.msgtype, log_ns, bytes(raw)))
+                bar.update()
+        except _READ_ERRORS as exc:
+            raise BagError(f"bag {path}: truncated or corrupt after {len(out)} message(s): "
+                           f"{_describe(exc)}") from None
+        bar.done()
+    out.sort(key=lambda m: m.log_ns)
+    return out

@@ -1,0 +1,87 @@
+"""The records of registration bags: topic names, message type names, storages, what a read
+found and what to write; :class:`BagError`. Plain Python (no rosbags, no numpy), so the
+command-line parser can use it.
+
+A bag holds the inputs of ``registration_node`` (docs/BAGS.md): ``FiducialPair`` messages on
+``/registration_node/fiducial_pairs``, or ``geometry_msgs/PointStamped`` on
+``/registration_node/working_point`` and ``/registration_node/destination_point`` (paired by
+stamp), and optionally targets with truth on ``/registration_node/targets`` (``FiducialPair``:
+``fiducial_id`` = target id, ``working_point`` = measured, ``destination_point`` = truth or NaN).
+Units: metres (REP 103). Both rosbag2 storages are read and written: sqlite3 (``.db3``) and mcap,
+as a bag directory (with ``metadata.yaml``) or a single storage file.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import NamedTuple, Union
+
+from ...pipeline.inputs import PairMessage, PointMessage
+
+FIDUCIAL_PAIR = "rbc_registration_interfaces/msg/FiducialPair"
+POINT_STAMPED = "geometry_msgs/msg/PointStamped"
+INTERFACE_PACKAGE = "rbc_registration_interfaces"
+STORAGES = ("sqlite3", "mcap")
+#: ``OutMessage.kind`` -> the message type written.
+MESSAGE_TYPES = {"pair": FIDUCIAL_PAIR, "point": POINT_STAMPED}
+
+__all__ = ["DEFAULT_TOPICS", "FIDUCIAL_PAIR", "INTERFACE_PACKAGE", "MESSAGE_TYPES",
+           "POINT_STAMPED", "STORAGES", "BagContents", "BagError", "OutMessage", "PairMessage",
+           "PointMessage", "RawMessage", "Topics"]
+
+
+class BagError(ValueError):
+    """A bag that cannot be used; the message names the bag and the problem."""
+
+
+class Topics(NamedTuple):
+    """Topic names of the node's inputs and of the targets (resolved, absolute)."""
+
+    fiducial_pairs: str
+    working_point: str
+    destination_point: str
+    targets: str
+
+    @classmethod
+    def for_node(cls, node_name: str = "registration_node") -> "Topics":
+        """The resolved ``~/...`` names of a node called ``node_name`` (root namespace)."""
+        base = "/" + node_name.strip("/")
+        return cls(f"{base}/fiducial_pairs", f"{base}/working_point",
+                   f"{base}/destination_point", f"{base}/targets")
+
+
+DEFAULT_TOPICS = Topics.for_node()
+
+
+class BagContents(NamedTuple):
+    """What :func:`read_bag` found: the node's inputs in bag (receive-time) order, the targets,
+    message counts per topic and the other topics of the bag (name -> type)."""
+
+    path: Path
+    inputs: tuple[Union[PairMessage, PointMessage], ...]
+    targets: tuple[PairMessage, ...]
+    counts: dict[str, int]
+    other_topics: dict[str, str]
+
+
+class RawMessage(NamedTuple):
+    """A serialized (CDR) message as recorded."""
+
+    topic: str
+    msgtype: str
+    log_ns: int
+    data: bytes
+
+
+class OutMessage(NamedTuple):
+    """A message to write: ``kind`` ``"pair"`` (FiducialPair) or ``"point"`` (PointStamped)."""
+
+    topic: str
+    kind: str
+    stamp_ns: int
+    frame_id: str
+    xyz: tuple[float, float, float]
+    fiducial_id: str = ""
+    destination_frame: str = ""
+    destination: tuple[float, float, float] = (math.nan, math.nan, math.nan)

@@ -1,0 +1,31 @@
+"""Recorded inputs of the node, as read from a bag (:mod:`rbc_registration.io.bag.reader`) and
+fed through the pipeline offline (:mod:`.offline`). Plain records, no numpy, no rclpy.
+Units: metres, stamps in seconds, ``log_ns`` the receive time in nanoseconds.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+
+class PairMessage(NamedTuple):
+    """A ``FiducialPair`` (``fiducial_id`` may be empty: id assigned by proximity)."""
+
+    log_ns: int
+    stamp_s: float
+    fiducial_id: str
+    working: tuple[float, float, float]
+    working_frame: str
+    destination: tuple[float, float, float]
+    destination_frame: str
+
+
+class PointMessage(NamedTuple):
+    """A ``PointStamped`` of stream ``"working"`` or ``"destination"``
+    (:data:`~rbc_registration.core.constants.WORKING`, ``DESTINATION``)."""
+
+    log_ns: int
+    stream: str
+    xyz: tuple[float, float, float]
+    frame_id: str
+    stamp_s: float

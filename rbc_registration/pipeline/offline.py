@@ -1,0 +1,150 @@
+"""Offline evaluation of a recorded cell: recorded inputs go through the node's own ingestion
+(:class:`~.ingest.Ingest`: stamp pairing, validation, id assignment, outlier rejection, the
+shared ``FiducialAccumulator``) and model builder (:func:`~.state.build_state`), exactly as
+``registration_node`` would process them. The report around it is
+:mod:`rbc_registration.io.evaluation`.
+
+No rclpy, no message packages. Lengths in metres as recorded (REP 103).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, NamedTuple, Optional, Sequence, Union
+
+import numpy as np
+
+from ..core.accumulator import FiducialAccumulator, FiducialSet
+from ..core.model import RbcModel
+from ..core.pairing import StampPairer
+from .ingest import Ingest, PairArgs
+from .inputs import PairMessage, PointMessage
+from .settings import Settings
+from .state import build_state
+from .targets import Targets, mean_by_id
+
+Input = Union[PairMessage, PointMessage]
+
+
+class EvaluationError(ValueError):
+    """Recorded data that give no model or unusable targets; the message says why."""
+
+
+class Accumulated(NamedTuple):
+    """The fiducials after ingestion, rejections by reason and the log lines of the rejections."""
+
+    fiducials: FiducialSet
+    rejected: dict[str, int]
+    log_lines: tuple[str, ...]
+
+
+class OfflineModel(NamedTuple):
+    """The outcome of :func:`evaluate_inputs`."""
+
+    model: RbcModel
+    fiducials: FiducialSet
+    settings: Settings
+    targets: Optional[Targets]
+    rejected: dict[str, int]
+    notes: tuple[str, ...]
+
+
+class _Log:
+    """Collects what the node would log (rejections) instead of printing every line."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def warning(self, text: str) -> None:
+        self.lines.append(text)
+
+    error = info = warning
+
+
+def infer_dimension(inputs: Sequence[Input],
+                    targets: Sequence[PairMessage] = ()) -> tuple[int, str]:
+    """2 when every z coordinate of the inputs and targets is exactly 0, else 3.
+
+    :return: the dimension and a sentence saying why.
+    """
+    zs = []
+    for m in tuple(inputs) + tuple(targets):
+        if isinstance(m, PointMessage):
+            zs.append(m.xyz[2])
+        else:
+            zs += [m.working[2], m.destination[2]]
+    zs = [z for z in zs if not math.isnan(z)]
+    if zs and all(z == 0.0 for z in zs):
+        return 2, "dimension 2: every z in the bag is 0 (--dim 3 to override)"
+    return 3, "dimension 3: the bag has non-zero z (--dim 2 to register x, y only)"
+
+
+def settings_for(dimension: int, overrides: Mapping[str, Any]) -> Settings:
+    """The node's parameters (defaults) with ``dimension`` and ``overrides`` applied.
+
+    :raises ValueError: naming an unknown or invalid parameter.
+    """
+    return Settings.from_mapping({**overrides, "dimension": dimension})
+
+
+def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
+    """Feed the inputs, in recorded order, through the node's ingestion."""
+    s = settings
+    acc = FiducialAccumulator(s.dimension, s.working_frame, s.destination_frame, s.merge_radius,
+                              s.outlier_distance)
+    log = _Log()
+    ingest = Ingest(acc, StampPairer(s.pair_slop, s.point_buffer), None, log)
+    for m in inputs:
+        if isinstance(m, PairMessage):
+            ingest.measurement(PairArgs(m.fiducial_id or None, m.working, m.destination,
+                                        m.working_frame, m.destination_frame, m.stamp_s))
+        else:
+            ingest.point(m.stream, m.xyz, m.frame_id, m.stamp_s)
+    return Accumulated(ingest.fiducial_set(), dict(acc.rejected), tuple(log.lines))
+
+
+def recorded_targets(targets: Sequence[PairMessage], settings: Settings) -> Optional[Targets]:
+    """Targets from recorded ``FiducialPair`` targets, repeats of an id averaged (first-seen
+    order); truth only when every target has a finite destination point.
+
+    :raises EvaluationError: for a target in another frame than the node's, or a non-finite
+        working point.
+    """
+    if not targets:
+        return None
+    d = settings.dimension
+    for k, m in enumerate(targets):
+        for name, got, want in (("working", m.working_frame, settings.working_frame),
+                                ("destination", m.destination_frame, settings.destination_frame)):
+            if got and got != want:
+                raise EvaluationError(f"target {m.fiducial_id or k!r}: {name} frame {got!r}, "
+                                      f"expected {want!r}")
+    ids = [m.fiducial_id or f"target-{k}" for k, m in enumerate(targets)]
+    unique, (working, truth) = mean_by_id(ids, [m.working[:d] for m in targets],
+                                          [m.destination[:d] for m in targets])
+    if not np.all(np.isfinite(working)):
+        raise EvaluationError("a target's working point has NaN or inf")
+    return Targets(unique, working, truth if np.all(np.isfinite(truth)) else None, "bag")
+
+
+def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
+                    recorded: Sequence[PairMessage] = (), targets: Optional[Targets] = None,
+                    source: str = "input") -> OfflineModel:
+    """Accumulate ``inputs`` and build the node's model; the targets to report are ``targets``
+    or else the ``recorded`` ones (if any).
+
+    :param source: names the data in error messages (e.g. the bag's path).
+    :raises EvaluationError: when no model can be built (too few fiducials, degenerate
+        geometry), naming ``source`` and the first rejection.
+    """
+    acc = accumulate(inputs, settings)
+    state = build_state(acc.fiducials, settings, 0)
+    if state.model is None:
+        raise EvaluationError(f"{source}: no model: {state.error}"
+                              + (f" ({sum(acc.rejected.values())} measurement(s) rejected, e.g. "
+                                 f"{acc.log_lines[0]})" if acc.log_lines else ""))
+    if targets is None:
+        targets = recorded_targets(recorded, settings)
+    notes = ("targets have no truth: TRE not computed",) \
+        if targets is not None and targets.destination is None else ()
+    return OfflineModel(state.model, acc.fiducials, settings, targets, acc.rejected, notes)

@@ -1,0 +1,57 @@
+"""The model state the node serves and ``evaluate`` reports: an immutable record swapped
+atomically, built from the enabled fiducials and the settings. No rclpy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+from ..core.accumulator import FiducialSet
+from ..core.model import ModelConfig, RbcModel, build_model
+from .settings import Settings
+
+
+@dataclass(frozen=True)
+class ModelState:
+    """What the node serves: the model (or ``None`` with the reason in ``error``), the fiducials
+    and settings it was built from, and when (``stamp_ns``, node clock; 0 = never)."""
+
+    model: Optional[RbcModel]
+    fiducials: Optional[FiducialSet]
+    settings: Optional[Settings]
+    error: str
+    stamp_ns: int = 0
+
+    @property
+    def n_measurements(self) -> int:
+        """Accepted measurements included in this model state."""
+        return self.fiducials.n_measurements if self.fiducials is not None else 0
+
+
+EMPTY_STATE = ModelState(None, None, None, "no measurements yet")
+
+
+def model_config(settings: Settings) -> ModelConfig:
+    """The core model configuration for the node's parameters (``sigma`` 0 means unknown)."""
+    return ModelConfig(dimension=settings.dimension, restoration=settings.restoration,
+                       steps=settings.restoration_steps, interpolation=settings.interpolation,
+                       sigma=settings.sigma if settings.sigma > 0 else None,
+                       rho_reject=settings.rho_reject, rho_apply=settings.rho_apply)
+
+
+def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int) -> ModelState:
+    """Build the model for ``fiducials``; a bad or degenerate set gives ``model=None`` and the
+    core's error message (never raises ValueError)."""
+    n = len(fiducials.ids)
+    if n < settings.min_fiducials:
+        return ModelState(None, fiducials, settings,
+                          f"{n} enabled fiducials, need min_fiducials={settings.min_fiducials}",
+                          stamp_ns)
+    try:
+        model = build_model(fiducials.working, fiducials.destination, model_config(settings),
+                            ids=list(fiducials.ids),
+                            repeat_statistics=fiducials.repeat_stats)
+    except ValueError as exc:
+        return ModelState(None, fiducials, settings, f"model not built: {exc}", stamp_ns)
+    return ModelState(model, fiducials, settings, "", stamp_ns)

@@ -1,0 +1,53 @@
+"""The pipeline settings (:mod:`rbc_registration.pipeline.settings`) as ROS parameters of
+``registration_node``: declared with descriptors and ranges, and the reason given for a value of
+the wrong ROS type. Units: metres and seconds (REP 103).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..pipeline.settings import SPECS, Settings
+
+#: ROS parameter type names of the Python types of :data:`SPECS` defaults.
+ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string"}
+
+
+def type_error(name: str, got_type: str, value: Any) -> str:
+    """The reason for a value of the wrong ROS type, e.g. ``sigma:=1`` (an integer) for a double.
+
+    Starts with "Wrong parameter type" as rclpy's own reason does (rclpy tests that prefix).
+    """
+    spec = SPECS.get(name)
+    want = ROS_TYPE_NAMES.get(type(spec.default), "?") if spec is not None else "?"
+    hint = f" (write {float(value)!r})" if want == "double" and isinstance(value, int) \
+        and not isinstance(value, bool) else ""
+    return (f"Wrong parameter type: {name} must be of type {want}, got {got_type.lower()} "
+            f"{value!r}{hint}")
+
+
+def declare(node: Any) -> Settings:
+    """Declare every parameter on ``node`` (an ``rclpy.node.Node``) with its descriptor and
+    return the validated :class:`Settings` (overrides from the command line or a YAML file
+    included).
+
+    :raises ValueError: when a starting value is invalid (the node refuses to start).
+    """
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    values = {}
+    for name, spec in SPECS.items():
+        desc = ParameterDescriptor(name=name, description=spec.description,
+                                   read_only=spec.read_only)
+        if spec.choices:
+            desc.additional_constraints = "one of: " + ", ".join(spec.choices)
+        if isinstance(spec.default, int) and not isinstance(spec.default, bool):
+            desc.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
+                                               step=1)]
+        elif isinstance(spec.default, float):
+            desc.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
+                                                            to_value=float(spec.high), step=0.0)]
+            if spec.low_exclusive:
+                desc.additional_constraints = f"> {spec.low:g}"
+        values[name] = node.declare_parameter(name, spec.default, desc).value
+    return Settings.from_mapping(values)
