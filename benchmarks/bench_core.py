@@ -1,8 +1,8 @@
 """Benchmarks of the core math (run: `.venv/bin/python benchmarks/bench_core.py`).
 
 - restoration: the paper's two Gauss-Newton steps at J = 125 (3D), 277 (2D), 1000 (3D):
-  ``iterative`` as shipped (solver auto: matrix-free CG on the normal equations), the same steps with
-  the normal matrix assembled from the pair blocks and Cholesky (``direct``), and a dense
+  ``iterative`` as shipped (solver auto: matrix-free CG on the normal equations), the same steps
+  with the normal matrix assembled from the pair blocks and Cholesky (``direct``), and a dense
   formulation (the J(J-1)/2 x dJ Jacobian and numpy lstsq) with the ratios; sigma_L excluded
   (timed separately), as the targets are about the solver.
 - large J (``--large``): iterative for J up to 10,000 and closed-form up to 100,000.

@@ -221,7 +221,8 @@ def run(args, workdir: str, out: str) -> dict:
             try:
                 s = proc_sample(node.pid)
             except OSError:
-                raise RuntimeError(f"the node exited ({node.poll()}); see {logs}/node.log")
+                raise RuntimeError(f"the node exited ({node.poll()}); see "
+                                   f"{logs}/node.log") from None
             busy, total = machine_ticks()
             soak_ticks = s["ticks"] + sum(_ticks(pid) for pid in mine)
             st = watch.latest
