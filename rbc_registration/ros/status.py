@@ -16,8 +16,9 @@ from ..pipeline.settings import Settings, corrections_applied
 from ..pipeline.state import ModelState
 from .conversions import nanoseconds_to_stamp
 
-#: RegistrationStatus.sigma_source for the core's sigma_source values.
-SIGMA_SOURCES = {"given": "parameter", "repeats": "repeats", "unknown": "unknown"}
+#: RegistrationStatus.sigma_source for each of the core's
+#: :data:`~rbc_registration.core.constants.SIGMA_SOURCES`.
+STATUS_SIGMA_SOURCE = {"given": "parameter", "repeats": "repeats", "unknown": "unknown"}
 
 
 def _nan(value: Any) -> float:
@@ -59,7 +60,7 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
         msg.recommendation = "unknown"
         return msg
     msg.sigma = _nan(model.sigma)
-    msg.sigma_source = SIGMA_SOURCES.get(model.sigma_source, model.sigma_source)
+    msg.sigma_source = STATUS_SIGMA_SOURCE.get(model.sigma_source, model.sigma_source)
     msg.sigma_l = [float(v) for v in model.sigma_l]
     msg.rho = _nan(model.rho)
     msg.recommendation = model.recommendation

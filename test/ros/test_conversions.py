@@ -57,3 +57,11 @@ def test_targets_frame_check_and_2d_split():
 def test_stamps():
     t = conv.nanoseconds_to_stamp(12_000_000_345)
     assert conv.stamp_to_seconds(t) == pytest.approx(12.000000345)
+
+
+def test_every_sigma_source_of_the_core_has_a_status_value():
+    from rbc_registration.core.constants import SIGMA_SOURCES
+    from rbc_registration.ros.status import STATUS_SIGMA_SOURCE
+
+    assert set(STATUS_SIGMA_SOURCE) == set(SIGMA_SOURCES)
+    assert STATUS_SIGMA_SOURCE["given"] == "parameter"
