@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Optional
+from typing import Callable, Optional
 
 from ..core.constants import DIMENSIONS, INTERPOLATIONS, RESTORATIONS
 
@@ -20,7 +20,7 @@ def positive(text: str) -> float:
     return value
 
 
-def name_list(what: str):
+def name_list(what: str) -> Callable[[str], tuple[str, ...]]:
     """An argument type: a comma-separated, non-empty list of ``what`` (e.g. fiducial ids)."""
     def parse(text: str) -> tuple[str, ...]:
         names = tuple(s.strip() for s in text.split(",") if s.strip())

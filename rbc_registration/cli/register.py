@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 from .options import add_model_options, name_list
+
+if TYPE_CHECKING:   # imported when the subcommand runs (a fast --help)
+    from ..core.model import ModelConfig
 
 
 def add_parser(sub: Any) -> None:
@@ -29,7 +32,7 @@ def add_parser(sub: Any) -> None:
 
 
 def model_config(args: argparse.Namespace, dimension: int,
-                 ids: Optional[Sequence[str]] = None) -> Any:
+                 ids: Sequence[str] = ()) -> "ModelConfig":
     """The core ``ModelConfig`` from the model options (and fiducial-id subsets).
 
     :raises ValueError: naming an unknown fiducial id of a subset.
@@ -42,7 +45,7 @@ def model_config(args: argparse.Namespace, dimension: int,
         missing = [s for s in subset if s not in ids]
         if missing:
             raise ValueError(f"{name}: unknown fiducial id(s) {', '.join(missing)}")
-        return tuple(list(ids).index(s) for s in subset)
+        return tuple(ids.index(s) for s in subset)
 
     return ModelConfig(dimension=dimension, restoration=args.restoration, steps=args.steps,
                        interpolation=args.interpolation, sigma=args.sigma,
