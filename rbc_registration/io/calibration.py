@@ -25,10 +25,9 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from rbc_registration.core.model import INTERPOLATIONS
-from rbc_registration.core.quaternion import (ORTHONORMAL_TOLERANCE, matrix_from_quaternion,
-                                              quaternion_from_matrix)
-
+from ..core.constants import INTERPOLATIONS
+from ..core.quaternion import (ORTHONORMAL_TOLERANCE, matrix_from_quaternion,
+                               quaternion_from_matrix)
 from . import calibration_format as fields
 from .calibration_format import FORMAT, FORMAT_VERSION, Decision
 

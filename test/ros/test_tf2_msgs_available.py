@@ -7,6 +7,7 @@ import os
 import threading
 
 import pytest
+from ros_helpers import RosTestBase
 
 TIMEOUT = 10.0  # [s] generous: discovery on a loaded 2-core CI machine
 TOPIC = '/rbc_test/tf_static'  # a topic of this test alone, with /tf_static's QoS
@@ -54,26 +55,25 @@ def test_type_hash_is_upstreams(type_name):
 
 
 @pytest.mark.ros
-class TestTFMessageOnLoopback:
+class TestTFMessageOnLoopback(RosTestBase):
     """A publisher latches one TFMessage; a subscriber created afterwards receives it."""
 
     @classmethod
     def setup_class(cls):
         import rclpy
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-        from ros_helpers import RosHarness
 
         cls.qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        cls.ros = RosHarness()  # own Context, executor thread; its client node subscribes
+        super().setup_class()  # own Context, executor thread; its client node subscribes
         cls.pub_node = cls.ros.add(rclpy.create_node('tf2_msgs_probe_pub',
                                                      context=cls.ros.context))
 
     @classmethod
     def teardown_class(cls):
         cls.ros.remove(cls.pub_node)
-        cls.ros.stop()  # joins the spin thread before shutting the context down
+        super().teardown_class()  # joins the spin thread before shutting the context down
 
     @staticmethod
     def _transform(parent, child, xyz, quat):
