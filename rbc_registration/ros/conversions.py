@@ -18,6 +18,7 @@ from rbc_registration_interfaces.msg import TargetCorrection
 
 from ..core.records import quote
 from ..pipeline.ingest import PairArgs
+from . import fast_msgs
 
 
 def stamp_to_seconds(stamp: Time) -> float:
@@ -37,12 +38,12 @@ def point_to_array(point: Point) -> NDArray[np.float64]:
 
 def array_to_point(xyz: Sequence[float]) -> Point:
     """(3,) -> ``geometry_msgs/Point``."""
-    return Point(x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
+    return fast_msgs.point(float(xyz[0]), float(xyz[1]), float(xyz[2]))
 
 
 def array_to_vector3(xyz: Sequence[float]) -> Vector3:
     """(3,) -> ``geometry_msgs/Vector3``."""
-    return Vector3(x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
+    return fast_msgs.vector3(float(xyz[0]), float(xyz[1]), float(xyz[2]))
 
 
 def fiducial_pair_to_args(msg: Any) -> PairArgs:
@@ -90,30 +91,27 @@ def target_corrections_to_msgs(tc: Any, z: NDArray[np.float64], applied: bool,
     :param applied: whether ``destination`` is the corrected point.
     :param stamps: the targets' stamps, copied into the answers.
     """
-    corrected = _to_xyz(np.asarray(tc.corrected), z)
-    uncorrected = _to_xyz(np.asarray(tc.uncorrected), z)
-    correction = _to_xyz(np.asarray(tc.correction), np.zeros_like(z))
-    inside = np.asarray(tc.inside_hull, dtype=bool)
-    expected = np.asarray(tc.expected_error, dtype=np.float64)
+    # Whole arrays to Python floats once (tolist is exact), then messages built by fast_msgs.
+    corrected = _to_xyz(np.asarray(tc.corrected), z).tolist()
+    uncorrected = _to_xyz(np.asarray(tc.uncorrected), z).tolist()
+    correction = _to_xyz(np.asarray(tc.correction), np.zeros_like(z)).tolist()
+    inside = np.asarray(tc.inside_hull, dtype=bool).tolist()
+    expected = np.asarray(tc.expected_error, dtype=np.float64).tolist()
+    applied = bool(applied)
     out = []
     for k in range(len(z)):
-        c = PointStamped(point=array_to_point(corrected[k]))
-        u = PointStamped(point=array_to_point(uncorrected[k]))
-        for point in (c, u):
-            point.header.frame_id = destination_frame
-            point.header.stamp = stamps[k]
-        out.append(TargetCorrection(destination=c if applied else u, corrected=c, uncorrected=u,
-                                    correction=array_to_vector3(correction[k]),
-                                    correction_applied=bool(applied),
-                                    inside_hull=bool(inside[k]),
-                                    expected_error=float(expected[k])))
+        c = fast_msgs.point_stamped(stamps[k], destination_frame, fast_msgs.point(*corrected[k]))
+        u = fast_msgs.point_stamped(stamps[k], destination_frame,
+                                    fast_msgs.point(*uncorrected[k]))
+        out.append(fast_msgs.target_correction(c if applied else u, c, u,
+                                               fast_msgs.vector3(*correction[k]), applied,
+                                               inside[k], expected[k]))
     return out
 
 
 def fill_correct_target_response(response: Any, result: TargetCorrection) -> Any:
     """Copy a ``TargetCorrection`` into a ``CorrectTarget`` response (success=True)."""
-    for name in ("destination", "corrected", "uncorrected", "correction", "correction_applied",
-                 "inside_hull", "expected_error"):
+    for name in fast_msgs.FIELDS[TargetCorrection]:
         setattr(response, name, getattr(result, name))
     response.success = True
     return response
