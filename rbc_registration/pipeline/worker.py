@@ -91,19 +91,25 @@ class RecomputeWorker:
     def notify(self) -> int:
         """A measurement or enable change arrived: rebuild after the debounce period.
 
+        Only the first change of a pending batch wakes the thread: a later one only moves the
+        due time later, which the thread sees when its wait for the earlier due time ends. So a
+        stream of measurements costs no thread hand-off per message.
+
         :return: a ticket for :meth:`wait`.
         """
-        return self._request(self._debounce.change)
+        return self._request(self._debounce.change, urgent=False)
 
     def request_now(self) -> int:
         """Rebuild as soon as possible; returns a ticket for :meth:`wait`."""
-        return self._request(self._debounce.urgent)
+        return self._request(self._debounce.urgent, urgent=True)
 
-    def _request(self, mark: Callable[[float], None]) -> int:
+    def _request(self, mark: Callable[[float], None], urgent: bool) -> int:
         with self._cond:
+            wake = urgent or not self._debounce.pending
             mark(self._clock())
             self._requested += 1
-            self._cond.notify()
+            if wake:
+                self._cond.notify()
             return self._requested
 
     def wake(self) -> None:

@@ -121,6 +121,36 @@ def test_a_continuous_stream_is_still_rebuilt():
         worker.stop()
 
 
+def test_only_the_first_change_of_a_pending_batch_wakes_the_thread():
+    """The thread looks at the clock (and the period) once per wake-up: a burst of changes
+    while one is pending wakes it once, a request_now again at once."""
+    clock, looks, woke = FakeClock(), [], threading.Event()
+    calls = []
+
+    def period():
+        looks.append(clock())
+        woke.set()
+        return 30.0
+
+    worker = RecomputeWorker(lambda: calls.append(clock()), period, [].append, clock)
+    try:
+        assert woke.wait(10.0)                   # the thread's first look (nothing pending)
+        woke.clear()
+        first = worker.notify()
+        assert woke.wait(10.0)                   # woken by the first change
+        n_looks = len(looks)
+        woke.clear()
+        for _ in range(500):
+            worker.notify()
+        assert not woke.wait(0.2)                # not woken by the others: still waiting
+        assert len(looks) == n_looks
+        assert worker.wait(worker.request_now(), 10.0)
+        assert len(looks) > n_looks and calls == [0.0]   # urgent: woken and rebuilt at once
+        assert worker.wait(first, 0.0)           # that rebuild covered the whole batch
+    finally:
+        worker.stop()
+
+
 def test_request_now_and_wait():
     worker, calls, _ = counting_worker(30.0, FakeClock())
     try:
