@@ -34,8 +34,37 @@ class JournalMismatch(ValueError):
     """The journal in ``state_dir`` was written with other frames or another dimension."""
 
 
+_json_string = json.encoder.encode_basestring_ascii  # what json.dumps uses for a str
+_float_repr = float.__repr__                          # what json.dumps uses for a float
+
+
+def _measurement_line(m: Measurement) -> Optional[str]:
+    """The journal line of ``m`` written directly: the same characters ``json.dumps`` gives
+    (keys in order, ``(",", ":")`` separators, ASCII, floats by ``float.__repr__``), at about
+    half the cost per ingested message. ``None`` (then :func:`record_to_json` takes the
+    ``json`` path, which refuses NaN and inf) unless the id is a str and every coordinate and
+    the stamp a float (``float.__repr__`` raises ``TypeError`` otherwise) and finite (the
+    ``repr`` of a finite float has no "n", that of ``nan`` / ``inf`` has)."""
+    if type(m.fiducial_id) is not str:
+        return None
+    try:
+        w = ",".join(map(_float_repr, m.working))
+        d = ",".join(map(_float_repr, m.destination))
+        s = _float_repr(m.stamp_s)
+    except TypeError:
+        return None
+    if "n" in w or "n" in d or "n" in s:
+        return None
+    auto = ',"auto":true' if m.auto_id else ""
+    return f'{{"t":"m","id":{_json_string(m.fiducial_id)},"w":[{w}],"d":[{d}],"s":{s}{auto}}}'
+
+
 def record_to_json(record: Record) -> str:
     """One journal line (without the newline) for ``record``."""
+    if type(record) is Measurement:
+        line = _measurement_line(record)
+        if line is not None:
+            return line
     if isinstance(record, Measurement):
         obj: dict[str, Any] = {"t": "m", "id": record.fiducial_id, "w": list(record.working),
                                "d": list(record.destination), "s": record.stamp_s}

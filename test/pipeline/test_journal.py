@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from rbc_registration.core.accumulator import EnabledChange, FiducialAccumulator, Measurement
@@ -25,6 +26,51 @@ def records():
 def test_records_round_trip_bit_exact():
     for record in records():
         assert record_from_json(record_to_json(record)) == record
+
+
+def json_dumps_line(record):
+    """The journal line as json.dumps wrote it before the direct encoding."""
+    if isinstance(record, Measurement):
+        obj = {"t": "m", "id": record.fiducial_id, "w": list(record.working),
+               "d": list(record.destination), "s": record.stamp_s}
+        if record.auto_id:
+            obj["auto"] = True
+    else:
+        obj = {"t": "e", "id": record.fiducial_id, "on": record.enabled}
+    return json.dumps(obj, separators=(",", ":"), allow_nan=False)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_direct_encoding_is_what_json_dumps_gave(seed):
+    """Every character as before (ids with quotes, backslashes, control and non-ASCII
+    characters; subnormal, signed-zero, huge and integral floats), and bit-exact back."""
+    rng = np.random.default_rng(seed)
+    ids = ["H1", 'a"b', "back\\slash", "tab\tx", "wörld-ß", "\u2603\U0001F600", "", "x" * 256,
+           "\x7f\x01"]
+    specials = [0.0, -0.0, 5e-324, 1e-310, 1.7976931348623157e308, -1e150, 3.0, 1e16, 0.1]
+    for k in range(300):
+        d = (2, 3)[k % 2]
+        pick = [specials[i] for i in rng.integers(0, len(specials), 2 * d + 1)]
+        values = [float(v) for v in rng.normal(scale=10.0 ** rng.integers(-20, 20), size=2 * d + 1)]
+        vals = pick if k % 3 == 0 else values
+        record = Measurement(ids[k % len(ids)], tuple(vals[:d]), tuple(vals[d:2 * d]), vals[-1],
+                             bool(k % 5 == 0))
+        line = record_to_json(record)
+        assert line == json_dumps_line(record)
+        assert record_from_json(line) == record
+    for record in records():
+        assert record_to_json(record) == json_dumps_line(record)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_a_nonfinite_coordinate_is_still_refused(bad):
+    with pytest.raises(ValueError):
+        record_to_json(Measurement("H1", (bad, 0.0, 0.0), (0.0, 0.0, 0.0), 1.0))
+
+
+def test_non_float_values_take_the_json_path():
+    record = Measurement("H1", (1, 2, 3), (np.float64(0.5), 0.0, 0.0), 2)
+    assert record_to_json(record) == json_dumps_line(record)
 
 
 @pytest.mark.parametrize("line, match", [
