@@ -185,6 +185,12 @@ class Ingest:
         with self._lock:
             return self._acc.fiducial_set()
 
+    def disabled_points(self) -> dict[str, tuple[float, ...]]:
+        """The mean destination-frame point of each disabled fiducial (for ``~/markers``)."""
+        with self._lock:
+            return {fid: mean_d for fid, (_n, enabled, _mw, _m2w, mean_d, _m2d)
+                    in self._acc.state_digest() if not enabled}
+
     def counters(self) -> Counters:
         """Measurement and rejection counters now."""
         with self._lock:

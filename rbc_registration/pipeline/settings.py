@@ -98,6 +98,9 @@ SPECS: dict[str, Spec] = {
                          low=0.0, high=10.0, low_exclusive=True),
     "marker_arrow_gain": Spec(100.0, "Correction arrows in ~/markers are drawn this many times "
                               "longer than the correction (dimensionless).", low=0.0, high=1e6),
+    "max_markers": Spec(1000, "Most correction arrows and disabled-fiducial labels in "
+                        "~/markers (the sphere lists hold every fiducial); with more, the "
+                        "arrows of the largest corrections are drawn.", low=0, high=1_000_000),
 }
 
 
@@ -130,6 +133,7 @@ class Settings:
     tf_broadcast: str
     marker_scale: float
     marker_arrow_gain: float
+    max_markers: int
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> "Settings":

@@ -1,8 +1,13 @@
 """``~/markers`` of ``registration_node``: the fiducials and their corrections for RViz, built
 from an immutable :class:`~rbc_registration.pipeline.state.ModelState`. Units: metres (REP 103).
+
+Built by the recompute thread, never on the executor: the sphere lists hold every fiducial
+(one marker each), the arrows and labels are at most ``max_markers``.
 """
 
 from __future__ import annotations
+
+from typing import Mapping, Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
@@ -11,54 +16,94 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from ..pipeline.settings import Settings
 from ..pipeline.state import ModelState
-from .conversions import array_to_point, embed_3d
+from . import fast_msgs
+from .conversions import embed_3d
+
+NS = "rbc_registration"
 
 
 def _color(r: float, g: float, b: float, a: float = 1.0) -> ColorRGBA:
     return ColorRGBA(r=r, g=g, b=b, a=a)
 
 
-def markers_msg(state: ModelState, settings: Settings, now: Time) -> MarkerArray:
-    """``~/markers`` in the destination frame: enabled fiducials (green spheres), disabled ones
-    (grey), and per enabled fiducial an arrow along its correction mapped by R_c, drawn
-    ``marker_arrow_gain`` times longer than the correction. Starts with DELETEALL."""
+def _xyz(points: np.ndarray) -> np.ndarray:
+    """(J, 2|3) -> (J, 3), z = 0 in 2D."""
+    points = np.asarray(points, dtype=np.float64).reshape(len(points), -1)
+    return points if points.shape[1] == 3 else np.column_stack([points, np.zeros(len(points))])
+
+
+def _points(xyz: np.ndarray) -> list:
+    return [fast_msgs.point(*p) for p in _xyz(xyz).tolist()]
+
+
+def largest(norms: np.ndarray, count: int) -> np.ndarray:
+    """Indices of the ``count`` largest of ``norms``, in index order (all when fewer)."""
+    if count >= len(norms):
+        return np.arange(len(norms))
+    if count <= 0:
+        return np.arange(0)
+    return np.sort(np.argpartition(-norms, count - 1)[:count])
+
+
+def markers_msg(state: ModelState, settings: Settings, now: Time,
+                disabled_points: Mapping[str, Sequence[float]] = {}) -> MarkerArray:
+    """``~/markers`` in the destination frame: DELETEALL, the enabled fiducials (green sphere
+    list), the disabled ones (grey sphere list, each labelled ``disabled: <id>`` at its mean
+    destination point), and an arrow along each enabled fiducial's correction mapped by R_c,
+    drawn ``marker_arrow_gain`` times longer than the correction. Labels and arrows together are
+    at most ``max_markers``: labels first, then the arrows of the largest corrections.
+
+    :param disabled_points: mean destination point (2 or 3 coordinates) of each disabled
+        fiducial, by id (:meth:`~rbc_registration.pipeline.ingest.Ingest.disabled_points`).
+    """
     out = MarkerArray(markers=[Marker(action=Marker.DELETEALL)])
     fiducials, model = state.fiducials, state.model
     if fiducials is None:
         return out
-    frame, ns, scale = settings.destination_frame, "rbc_registration", settings.marker_scale
+    frame, scale = settings.destination_frame, settings.marker_scale
+    budget = settings.max_markers
 
     def marker(kind: int, mid: int, name: str) -> Marker:
-        m = Marker(type=kind, id=mid, ns=f"{ns}/{name}", action=Marker.ADD)
+        m = Marker(type=kind, id=mid, ns=f"{NS}/{name}", action=Marker.ADD)
         m.header.frame_id = frame
         m.header.stamp = now
         m.pose.orientation.w = 1.0
         m.lifetime = Duration()
         return m
 
-    def xyz(points: np.ndarray) -> np.ndarray:
-        return points if points.shape[1] == 3 else np.column_stack([points, np.zeros(len(points))])
-
     spheres = marker(Marker.SPHERE_LIST, 0, "fiducials")
     spheres.scale.x = spheres.scale.y = spheres.scale.z = scale
     spheres.color = _color(0.1, 0.8, 0.2)
-    spheres.points = [array_to_point(p) for p in xyz(fiducials.destination)]
+    spheres.points = _points(fiducials.destination)
     out.markers.append(spheres)
-    if fiducials.disabled_ids:
-        disabled = marker(Marker.TEXT_VIEW_FACING, 1, "disabled")
-        disabled.scale.z = scale
-        disabled.color = _color(0.6, 0.6, 0.6)
-        disabled.text = "disabled: " + ", ".join(fiducials.disabled_ids)
-        out.markers.append(disabled)
+    disabled = [(fid, disabled_points[fid]) for fid in fiducials.disabled_ids
+                if fid in disabled_points]
+    if disabled:
+        grey = marker(Marker.SPHERE_LIST, 0, "disabled_fiducials")
+        grey.scale.x = grey.scale.y = grey.scale.z = scale
+        grey.color = _color(0.6, 0.6, 0.6)
+        at = _xyz(np.array([p for _, p in disabled]))
+        grey.points = _points(at)
+        out.markers.append(grey)
+        for k, ((fid, _), (x, y, z)) in enumerate(zip(disabled[:budget], at.tolist())):
+            label = marker(Marker.TEXT_VIEW_FACING, k, "disabled")
+            label.pose.position = fast_msgs.point(x, y, z + scale)  # just above its sphere
+            label.scale.z = scale
+            label.color = _color(0.6, 0.6, 0.6)
+            label.text = f"disabled: {fid}"
+            out.markers.append(label)
+        budget -= min(budget, len(disabled))
     if model is None:
         return out
     r, t = embed_3d(model.corrected.rotation, model.corrected.translation)
-    start = xyz(fiducials.destination)
-    step = xyz(np.asarray(model.corrections)) @ r.T * (-settings.marker_arrow_gain)
-    for k in range(len(start)):
+    start = _xyz(fiducials.destination)
+    step = _xyz(np.asarray(model.corrections)) @ r.T * (-settings.marker_arrow_gain)
+    chosen = largest(np.linalg.norm(step, axis=1), budget)
+    starts, ends = start[chosen].tolist(), (start[chosen] + step[chosen]).tolist()
+    for k, a, b in zip(chosen.tolist(), starts, ends):
         arrow = marker(Marker.ARROW, k, "corrections")
         arrow.scale.x, arrow.scale.y, arrow.scale.z = scale * 0.2, scale * 0.4, scale * 0.4
         arrow.color = _color(0.9, 0.3, 0.1)
-        arrow.points = [array_to_point(start[k]), array_to_point(start[k] + step[k])]
+        arrow.points = [fast_msgs.point(*a), fast_msgs.point(*b)]
         out.markers.append(arrow)
     return out

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Mapping, Optional, Sequence
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -164,6 +164,7 @@ class RegistrationNode(ServicesMixin, Node):
     def _rebuild(self) -> None:
         generation = self._generation
         fiducials = self._ingest.fiducial_set()
+        disabled_points = self._ingest.disabled_points()
         state = self._build(fiducials, self._settings, self.get_clock().now().nanoseconds)
         with self._pub_lock:
             if generation != self._generation:
@@ -171,14 +172,18 @@ class RegistrationNode(ServicesMixin, Node):
             self._state = state
         if state.error:
             self.get_logger().warning(state.error)
-        self._publish_model(state)
+        self._publish_model(state, disabled_points)
 
     def _on_worker_error(self, exc: BaseException) -> None:
         self.get_logger().error(f"recompute failed: {type(exc).__name__}: {exc}")
 
-    def _publish_model(self, state: ModelState) -> None:
+    def _publish_model(self, state: ModelState,
+                       disabled_points: Mapping[str, Sequence[float]]) -> None:
+        """Publish a new model (recompute thread). The markers are built before the publishing
+        lock is taken: the executor's status timer takes that lock too."""
         s = self._settings
         now = self.get_clock().now().to_msg()
+        markers = markers_msg(state, s, now, disabled_points)
         with self._pub_lock:
             if state.model is not None:
                 corrected = conv.registration_to_transform(
@@ -190,7 +195,7 @@ class RegistrationNode(ServicesMixin, Node):
                 if self._tf is not None and s.tf_broadcast != "none":
                     self._tf.sendTransform(corrected if s.tf_broadcast == "corrected"
                                            else uncorrected)
-            self._pub_markers.publish(markers_msg(state, s, now))
+            self._pub_markers.publish(markers)
         self._publish_status()
         if s.state_dir:
             try:
