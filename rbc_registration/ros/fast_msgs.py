@@ -18,6 +18,7 @@ bytes as) messages built the generated way.
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, PointStamped, Vector3
@@ -41,22 +42,22 @@ def _checks_on(cls: type) -> bool:
 FAST = not any(_checks_on(cls) for cls in FIELDS)
 
 
-def point(x: float, y: float, z: float) -> Point:
-    """``geometry_msgs/Point(x=x, y=y, z=z)``."""
+def _xyz(cls: type, x: float, y: float, z: float) -> Any:
     if not FAST:
-        return Point(x=x, y=y, z=z)
-    m = Point.__new__(Point)
+        return cls(x=x, y=y, z=z)
+    m = cls.__new__(cls)
     m._check_fields, m._x, m._y, m._z = False, x, y, z
     return m
+
+
+def point(x: float, y: float, z: float) -> Point:
+    """``geometry_msgs/Point(x=x, y=y, z=z)``."""
+    return _xyz(Point, x, y, z)
 
 
 def vector3(x: float, y: float, z: float) -> Vector3:
     """``geometry_msgs/Vector3(x=x, y=y, z=z)``."""
-    if not FAST:
-        return Vector3(x=x, y=y, z=z)
-    m = Vector3.__new__(Vector3)
-    m._check_fields, m._x, m._y, m._z = False, x, y, z
-    return m
+    return _xyz(Vector3, x, y, z)
 
 
 def point_stamped(stamp: Time, frame_id: str, p: Point) -> PointStamped:
