@@ -5,8 +5,11 @@ started by tests inherit the variables through ``os.environ``. Nothing here impo
 tests must be able to prove that ``rbc_registration.core`` never loads it.
 """
 
+import atexit
 import os
+import shutil
 import sys
+import tempfile
 
 import pytest
 
@@ -25,6 +28,10 @@ os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 # other.
 ROS_DOMAIN_ID = os.getpid() % 101 + 1
 os.environ['ROS_DOMAIN_ID'] = str(ROS_DOMAIN_ID)
+# ROS_HOME of this test process and its children: ROS logs and the nodes' default state_dir
+# ($ROS_HOME/rbc_registration/...) go to a directory of this run, never to the user's ~/.ros.
+os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='rbc_test_ros_home_')
+atexit.register(shutil.rmtree, os.environ['ROS_HOME'], True)
 # In the pip venv (scripts/bootstrap.sh) the ament index is the venv prefix; scripts/env.sh sets
 # this too, but plain `.venv/bin/python -m pytest` (an IDE) does not. A sourced ROS keeps its own.
 if not os.environ.get('AMENT_PREFIX_PATH') and os.path.isdir(

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 import re
-from typing import Optional
+from typing import Mapping, Optional
 
 STATE_ROOT = "~/.ros/rbc_registration"  # '~' is expanded by the node (state_dir parameter)
 SEPARATOR = "."                          # not a character of ROS names: the mapping is one-to-one
@@ -69,6 +69,13 @@ def state_dir_name(namespace: str, name: str, pushed: Optional[str] = None) -> s
     joined with ``.`` (one-to-one: different nodes, different names)."""
     resolved = resolve_namespace(namespace, pushed)
     return SEPARATOR.join([t for t in resolved.split("/") if t] + [check_node_name(name)])
+
+
+def state_root(environ: Optional[Mapping[str, str]] = None) -> str:
+    """Where a node started without a launch file keeps its default ``state_dir``:
+    ``$ROS_HOME/rbc_registration`` (ROS_HOME as rcl uses it for logs), else :data:`STATE_ROOT`."""
+    ros_home = (os.environ if environ is None else environ).get("ROS_HOME", "")
+    return os.path.join(ros_home, "rbc_registration") if ros_home else STATE_ROOT
 
 
 def default_state_dir(namespace: str, name: str, pushed: Optional[str] = None,

@@ -32,6 +32,11 @@ class Spec(NamedTuple):
 CORRECTION_MODES = ("auto", "on", "off")
 TF_MODES = ("corrected", "uncorrected", "none")
 RELIABILITIES = ("reliable", "best_effort")
+#: ``state_dir`` value meaning "derived from the node's namespace and name"
+#: (:func:`rbc_registration.io.state_paths.default_state_dir`).
+STATE_DIR_AUTO = "auto"
+POINT_MODES = ("pair", "sample")      # point_mode: pair points by stamp, or on ~/take_sample only
+SAMPLE_SOURCES = ("topic", "tf")      # sample_destination_source
 
 SPECS: dict[str, Spec] = {
     "working_frame": Spec("tracker", "Frame the working points (fiducials, targets) are measured "
@@ -84,16 +89,39 @@ SPECS: dict[str, Spec] = {
                               "'reliable' (KEEP_ALL: a burst makes the publisher wait, nothing is "
                               "dropped) or 'best_effort' (matches best-effort driver publishers; "
                               "depth 1000). Read-only.", read_only=True, choices=RELIABILITIES),
-    "state_dir": Spec("", "Directory of the measurement journal and the calibration snapshot "
-                      "('~' expanded); empty = no persistence. Read-only.", read_only=True),
+    "state_dir": Spec(STATE_DIR_AUTO, "Directory of the measurement journal, the calibration "
+                      "snapshot and saved calibrations ('~' expanded); 'auto' = "
+                      "$ROS_HOME/rbc_registration/<namespace tokens>.<node name> ($ROS_HOME "
+                      "default ~/.ros), one per node; empty = no persistence. Read-only.",
+                      read_only=True),
+    "calibration_file": Spec("", "Calibration YAML (docs/CALIBRATION.md) loaded at start and "
+                             "published on ~/transform and /tf_static until a live model is "
+                             "built; its frames and dimension must be the node's; empty = none. "
+                             "Read-only.", read_only=True),
     "journal_fsync": Spec(False, "fsync the journal after every record (survives power loss; "
                           "slower). Default: flush to the OS per record (survives SIGKILL). "
                           "Read-only.", read_only=True),
     "status_period": Spec(1.0, "Period [s] of ~/status and /diagnostics besides each "
                           "recompute. Read-only.", read_only=True, low=0.01, high=3600.0),
-    "tf_broadcast": Spec("corrected", "Which registration to broadcast as a static tf where "
-                         "tf2_ros is installed: 'corrected', 'uncorrected' or 'none'.",
+    "tf_broadcast": Spec("corrected", "Which registration the node's own /tf_static entry "
+                         "holds (replaced on every model): 'corrected', 'uncorrected' or 'none' "
+                         "(no entry).",
                          choices=TF_MODES),
+    "point_mode": Spec("pair", "'pair': a ~/working_point and a ~/destination_point whose "
+                       "stamps are within pair_slop are one measurement; 'sample': the points "
+                       "only update the latest ones, recorded on ~/take_sample.",
+                       choices=POINT_MODES),
+    "sample_max_age": Spec(1.0, "~/take_sample refuses a latest working or destination point "
+                           "received longer ago than this [s] (node clock).", low=0.0,
+                           high=1e6, low_exclusive=True),
+    "sample_destination_source": Spec("topic", "Destination point of ~/take_sample: 'topic' "
+                                      "(the latest ~/destination_point) or 'tf' (the origin of "
+                                      "sample_tf_child in sample_tf_parent, looked up now; needs "
+                                      "tf2_ros).", choices=SAMPLE_SOURCES),
+    "sample_tf_parent": Spec("", "tf frame the destination point of a tf sample is expressed "
+                             "in; empty = destination_frame."),
+    "sample_tf_child": Spec("", "tf frame whose origin is the destination point of a tf sample "
+                            "(e.g. the robot TCP or the tracker target); must be set for 'tf'."),
     "marker_scale": Spec(0.01, "Diameter [m] of the fiducial spheres in ~/markers.",
                          low=0.0, high=10.0, low_exclusive=True),
     "marker_arrow_gain": Spec(100.0, "Correction arrows in ~/markers are drawn this many times "
@@ -128,9 +156,15 @@ class Settings:
     point_buffer: int
     input_reliability: str
     state_dir: str
+    calibration_file: str
     journal_fsync: bool
     status_period: float
     tf_broadcast: str
+    point_mode: str
+    sample_max_age: float
+    sample_destination_source: str
+    sample_tf_parent: str
+    sample_tf_child: str
     marker_scale: float
     marker_arrow_gain: float
     max_markers: int
@@ -175,6 +209,9 @@ def validate_one(name: str, value: Any) -> Optional[str]:
             return f"{name} must be one of {', '.join(spec.choices)}; got {value!r}"
         if name.endswith("_frame") and (not value or value.startswith("/") or " " in value):
             return f"{name} must be a non-empty frame id without a leading '/' or spaces, " \
+                   f"got {value!r}"
+        if name.startswith("sample_tf_") and (value.startswith("/") or " " in value):
+            return f"{name} must be a frame id without a leading '/' or spaces (or empty), " \
                    f"got {value!r}"
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):

@@ -44,11 +44,7 @@ from .guards import guard_input, guard_service
 from .markers import markers_msg
 from .services import ServicesMixin
 from .status import diagnostics_msg, status_msg
-
-try:  # tf2_ros is optional (not on PyPI): without it no static tf is broadcast.
-    from tf2_ros import StaticTransformBroadcaster
-except ImportError:  # pragma: no cover - depends on the installation
-    StaticTransformBroadcaster = None
+from .tf_static import StaticTf
 
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                      reliability=ReliabilityPolicy.RELIABLE,
@@ -87,6 +83,8 @@ class RegistrationNode(ServicesMixin, Node):
         self._pub_lock = threading.Lock()
         self._state: ModelState = EMPTY_STATE
         self._generation = 0  # bumped by ~/reset: a rebuild of an older generation is dropped
+        # The transforms /tf_static chooses from ({tf_broadcast: TransformStamped}); {} = none.
+        self._tf_transforms: dict[str, TransformStamped] = {}
         accumulator = FiducialAccumulator(s.dimension, s.working_frame, s.destination_frame,
                                           s.merge_radius, s.outlier_distance, s.max_stamp_age)
         journal = None
@@ -101,7 +99,10 @@ class RegistrationNode(ServicesMixin, Node):
                               self.get_logger(), lambda: self.get_clock().now().nanoseconds * 1e-9)
         restored = self._ingest.restore()
 
-        self._tf = StaticTransformBroadcaster(self) if StaticTransformBroadcaster else None
+        self._tf = StaticTf(self)
+        if not self._tf.available:
+            self.get_logger().warning(f"static tf off: {self._tf.missing}; /tf_static is not "
+                                      "published (~/transform still is)")
         self._pub_transform = self.create_publisher(TransformStamped, "~/transform", LATCHED)
         self._pub_transform_u = self.create_publisher(TransformStamped, "~/transform_uncorrected",
                                                       LATCHED)
@@ -140,7 +141,7 @@ class RegistrationNode(ServicesMixin, Node):
         self.get_logger().info(
             f"registering {s.working_frame!r} -> {s.destination_frame!r} ({s.dimension}D); "
             f"state_dir {s.state_dir or '(none: no persistence)'}; restored {restored} "
-            f"measurements; static tf {'on' if self._tf else 'off (tf2_ros not installed)'}")
+            f"measurements; /tf_static {s.tf_broadcast if self._tf.available else 'off'}")
 
     # -- inputs -------------------------------------------------------------------------------
     def _on_fiducial_pair(self, msg: FiducialPair) -> None:
@@ -192,9 +193,8 @@ class RegistrationNode(ServicesMixin, Node):
                     state.model.uncorrected, s.destination_frame, s.working_frame, now)
                 self._pub_transform.publish(corrected)
                 self._pub_transform_u.publish(uncorrected)
-                if self._tf is not None and s.tf_broadcast != "none":
-                    self._tf.sendTransform(corrected if s.tf_broadcast == "corrected"
-                                           else uncorrected)
+                self._tf_transforms = {"corrected": corrected, "uncorrected": uncorrected}
+                self._publish_tf()
             self._pub_markers.publish(markers)
         self._publish_status()
         if s.state_dir:
@@ -202,6 +202,15 @@ class RegistrationNode(ServicesMixin, Node):
                 self._save(state)
             except OSError as exc:  # e.g. disk full: the journal still holds every measurement
                 self.get_logger().error(f"calibration snapshot not written: {exc}")
+
+    def _publish_tf(self) -> None:
+        """/tf_static: the registration ``tf_broadcast`` chooses of the latest model (call with
+        ``_pub_lock`` held); nothing of this node's child frame without one or with ``none``."""
+        chosen = self._tf_transforms.get(self._settings.tf_broadcast)
+        if chosen is None:
+            self._tf.remove(self._settings.working_frame)
+        else:
+            self._tf.set(chosen)
 
     def status(self) -> RegistrationStatus:
         """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
@@ -253,13 +262,18 @@ class RegistrationNode(ServicesMixin, Node):
             return
         self._settings = self._settings.replace(**changes)
         self._ingest.configure(self._settings)
+        if "tf_broadcast" in changes:
+            with self._pub_lock:
+                self._publish_tf()
         self.get_logger().info(f"parameters changed: {changes}")
         self._worker.notify()
 
     def destroy_node(self) -> None:
-        """Stop the recompute thread, close the journal, then destroy the node."""
-        self._worker.stop()
-        self._ingest.close()
+        """Stop the recompute thread, close the journal, then destroy the node (also one whose
+        constructor failed half way: rclpy's context shutdown destroys it again)."""
+        for part, stop in (("_worker", "stop"), ("_ingest", "close")):
+            if hasattr(self, part):
+                getattr(getattr(self, part), stop)()
         super().destroy_node()
 
 

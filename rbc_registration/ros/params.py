@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..pipeline.settings import SPECS, Settings
+from ..io.state_paths import default_state_dir, state_root
+from ..pipeline.settings import SPECS, STATE_DIR_AUTO, Settings
 
 #: ROS parameter type names of the Python types of :data:`SPECS` defaults.
 ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string"}
@@ -29,7 +30,8 @@ def type_error(name: str, got_type: str, value: Any) -> str:
 def declare(node: Any) -> Settings:
     """Declare every parameter on ``node`` (an ``rclpy.node.Node``) with its descriptor and
     return the validated :class:`Settings` (overrides from the command line or a YAML file
-    included).
+    included). ``state_dir`` ``auto`` becomes the node's own directory,
+    ``<state_root()>/<namespace tokens>.<node name>`` (:mod:`rbc_registration.io.state_paths`).
 
     :raises ValueError: when a starting value is invalid (the node refuses to start).
     """
@@ -50,4 +52,7 @@ def declare(node: Any) -> Settings:
             if spec.low_exclusive:
                 desc.additional_constraints = f"> {spec.low:g}"
         values[name] = node.declare_parameter(name, spec.default, desc).value
+    if values["state_dir"] == STATE_DIR_AUTO:
+        values["state_dir"] = default_state_dir(node.get_namespace(), node.get_name(),
+                                                root=state_root())
     return Settings.from_mapping(values)

@@ -32,6 +32,8 @@ class ServicesMixin:
     _pub_lock: Any
     _generation: int
     _pub_markers: Any
+    _tf_transforms: dict
+    _publish_tf: Any
 
     def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
         """Answer from one snapshot of the model: (results, "", note) or ([], reason, "")."""
@@ -87,6 +89,8 @@ class ServicesMixin:
         with self._pub_lock:
             self._generation += 1
             self._state = EMPTY_STATE
+            self._tf_transforms = {}
+            self._publish_tf()  # /tf_static without this node's child frame
         response.success, response.message = self._ingest.reset()
         self._publish_status()
         with self._pub_lock:

@@ -161,10 +161,10 @@ TEST_NODE_PARAMS = {"debounce_period": 0.05}
 
 def start_test_node(name: str, state_dir: Any = None, log: Any = None, **options: Any):
     """:func:`rbc_registration.ros.process.start_node` with the tests' parameters
-    (``debounce_period:=0.05``, ``state_dir`` when given); keyword arguments that are not
-    options of ``start_node`` are node parameters."""
+    (``debounce_period:=0.05``, ``state_dir`` when given, else none: no persistence); keyword
+    arguments that are not options of ``start_node`` are node parameters."""
     keys = ("env", "ros_args", "command", "popen")
-    params = {**TEST_NODE_PARAMS, **({"state_dir": state_dir} if state_dir else {}),
+    params = {**TEST_NODE_PARAMS, "state_dir": state_dir or "''",
               **{k: v for k, v in options.items() if k not in keys}}
     return start_node(name, params, log=log, **{k: v for k, v in options.items() if k in keys})
 

@@ -54,7 +54,8 @@ class NodeTestBase(RosTestBase):
     def make_node(self, node_options=None, **params):
         """A node with parameters ``params``; ``node_options`` go to the constructor."""
         name = f"reg_{os.getpid()}_{next(_names)}"
-        overrides = [Parameter(k, value=v) for k, v in {"debounce_period": 0.05, **params}.items()]
+        params = {"debounce_period": 0.05, "state_dir": "", **params}  # no persistence unless given
+        overrides = [Parameter(k, value=v) for k, v in params.items()]
         node = RegistrationNode(name, context=self.ros.context, parameter_overrides=overrides,
                                 **(node_options or {}))
         self.nodes.append(self.ros.add(node))
@@ -393,24 +394,3 @@ class TestStartAndTf(NodeTestBase):
         with pytest.raises(ValueError, match="dimension=3.*dimension=2"):
             RegistrationNode("reg_bad2", context=self.ros.context, parameter_overrides=[
                 Parameter("state_dir", value=str(tmp_path)), Parameter("dimension", value=2)])
-
-    def test_static_tf_is_broadcast_where_tf2_ros_is_installed(self, monkeypatch):
-        import rbc_registration.ros.node as node_module
-
-        sent = []
-
-        class FakeBroadcaster:
-            def __init__(self, node):
-                self.node = node
-
-            def sendTransform(self, transform):  # noqa: N802 - tf2_ros API
-                sent.append(transform)
-
-        monkeypatch.setattr(node_module, "StaticTransformBroadcaster", FakeBroadcaster)
-        node = self.make_node(tf_broadcast="uncorrected")
-        self.stream(node)
-        model = self.recompute(node).model
-        wait_for(lambda: sent, what="a static transform")
-        m = transform_to_matrix(sent[-1])
-        np.testing.assert_allclose(m[:3, 3], model.uncorrected.translation, atol=1e-12)
-        assert sent[-1].child_frame_id == "tracker"

@@ -1,0 +1,144 @@
+"""Calibrations (:mod:`.calibration`) from what the node and the CLI hold: the served model
+state, the node's snapshot (``state_dir/calibration.json``) or a ``register`` / ``evaluate`` JSON
+report; and the check that a loaded calibration belongs to the node's frames. No rclpy.
+
+Units: a calibration is in metres; a report in millimetres (its ``unit``) is converted.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any, Callable, Mapping, Optional
+
+from ..core.constants import M_PER_MM
+from ..pipeline.settings import Settings, corrections_applied
+from ..pipeline.snapshot import SNAPSHOT_FORMAT
+from ..pipeline.state import ModelState
+from .calibration import REGISTRATIONS, Calibration, Decision, calibration_from_registration
+
+#: The calibration file ``~/save`` writes into ``state_dir``.
+CALIBRATION_NAME = "calibration.yaml"
+#: Metres per unit of a report's ``unit`` label.
+METRES_PER_UNIT = {"m": 1.0, "mm": M_PER_MM}
+
+
+def calibration_path(state_dir: str) -> str:
+    """Path of the calibration file in ``state_dir``."""
+    return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), CALIBRATION_NAME)
+
+
+def decision_of(mode: str, interpolation: str, recommendation: str,
+                rho: Optional[float]) -> Decision:
+    """The decision of correction mode ``mode`` (``auto``, ``on``, ``off``) for a model with
+    ``recommendation`` and ``rho``: the interpolation when corrections apply, else uncorrected."""
+    apply = corrections_applied(mode, recommendation)
+    rho_text = "unknown" if rho is None else f"{rho:.3g}"
+    return Decision(mode=mode, method=interpolation if apply else "uncorrected", apply=apply,
+                    reason=f"recommendation {recommendation} (rho {rho_text})")
+
+
+def calibration_from_state(state: ModelState, settings: Settings, registration: str,
+                           clock: Optional[Callable[[], float]] = None) -> Calibration:
+    """The calibration of the served model: ``registration`` (``corrected`` / ``uncorrected``)
+    from destination_frame (parent) to working_frame (child); ``created`` from the model's stamp
+    (node clock) unless ``clock`` is given.
+
+    :raises ValueError: without a model, or for an unknown ``registration``.
+    """
+    model = state.model
+    if model is None:
+        raise ValueError(f"no model to save as a calibration yet: {state.error}")
+    if registration not in REGISTRATIONS:
+        raise ValueError(f"registration must be one of {', '.join(REGISTRATIONS)}, "
+                         f"got {registration!r}")
+    built = state.settings or settings
+    reg = model.corrected if registration == "corrected" else model.uncorrected
+    stamp_s = state.stamp_ns * 1e-9
+    return calibration_from_registration(
+        reg.rotation, reg.translation, parent_frame=settings.destination_frame,
+        child_frame=settings.working_frame, registration=registration, fre_rms=reg.fre_rms,
+        decision=decision_of(settings.apply_corrections, built.interpolation,
+                             model.recommendation, model.rho),
+        sigma=model.sigma, sigma_l=model.sigma_l, expected_tre=None,
+        n_fiducials=len(model.ids), clock=clock or (lambda: stamp_s))
+
+
+def _get(data: Mapping[str, Any], key: str, where: str) -> Any:
+    if key not in data or data[key] is None:
+        raise ValueError(f"{where}: {key}: missing")
+    return data[key]
+
+
+def calibration_from_document(data: Any, where: str, registration: str = "corrected", *,
+                              parent_frame: Optional[str] = None,
+                              child_frame: Optional[str] = None, unit: Optional[str] = None,
+                              mtime: Optional[float] = None) -> Calibration:
+    """The calibration in a node snapshot (``format`` ``rbc_registration calibration 1``) or a
+    ``register`` / ``evaluate --json`` report.
+
+    :param where: the file name, for messages.
+    :param parent_frame: the destination frame (default: the snapshot's; a report needs it or
+        takes ``world``).
+    :param child_frame: the working frame (default: the snapshot's, or ``tracker``).
+    :param unit: the length unit of a report, overriding its ``unit`` (``m`` or ``mm``).
+    :param mtime: seconds since the epoch for ``created`` of a report (it holds no time).
+    :raises ValueError: one line naming ``where`` and what is missing or wrong.
+    """
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: not a JSON object")
+    if registration not in REGISTRATIONS:
+        raise ValueError(f"registration must be one of {', '.join(REGISTRATIONS)}, "
+                         f"got {registration!r}")
+    snapshot = data.get("format") == SNAPSHOT_FORMAT
+    if snapshot:
+        if not data.get("model_valid"):
+            raise ValueError(f"{where}: the snapshot holds no model ({data.get('error', '')})")
+        settings = _get(data, "settings", where)
+        scale = 1.0
+        parent = parent_frame or _get(data, "destination_frame", where)
+        child = child_frame or _get(data, "working_frame", where)
+        mode, interpolation = settings.get("apply_corrections", "auto"), settings.get(
+            "interpolation", "paper")
+        created_s = _get(data, "stamp_ns", where) * 1e-9
+        n_fiducials = len(_get(data, "fiducial_ids", where))
+        sigma_l = _get(data, "sigma_l", where)
+    else:
+        label = unit or _get(data, "unit", where)
+        if label not in METRES_PER_UNIT:
+            raise ValueError(f"{where}: unit {label!r}: a calibration is in metres; export "
+                             f"converts {', '.join(METRES_PER_UNIT)} (give --unit)")
+        scale = METRES_PER_UNIT[label]
+        parent, child = parent_frame or "world", child_frame or "tracker"
+        mode, interpolation = "auto", _get(data, "interpolation", where)
+        created_s = time.time() if mtime is None else mtime
+        n_fiducials = _get(data, "n_fiducials", where)
+        sigma_l = _get(data, "sigma_L", where)
+    reg = _get(data, registration, where)
+    sigma = data.get("sigma")
+    rho = data.get("rho")
+    try:
+        return calibration_from_registration(
+            _get(reg, "rotation", f"{where}: {registration}"),
+            [scale * v for v in _get(reg, "translation", f"{where}: {registration}")],
+            parent_frame=parent, child_frame=child, registration=registration,
+            fre_rms=scale * _get(reg, "fre_rms", f"{where}: {registration}"),
+            decision=decision_of(mode, interpolation, _get(data, "recommendation", where), rho),
+            sigma=None if sigma is None else scale * sigma, sigma_l=[scale * v for v in sigma_l],
+            expected_tre=None, n_fiducials=n_fiducials, clock=lambda: created_s)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
+def check_matches(cal: Calibration, where: str, working_frame: str, destination_frame: str,
+                  dimension: int) -> None:
+    """Refuse a calibration of other frames or another dimension than the node's.
+
+    :raises ValueError: naming ``where``, the field and both values.
+    """
+    for name, got, want in (("parent_frame", cal.parent_frame, destination_frame),
+                            ("child_frame", cal.child_frame, working_frame),
+                            ("dimension", cal.dimension, dimension)):
+        if got != want:
+            raise ValueError(f"{where}: {name} is {got!r}, but the node has {want!r} "
+                             f"(destination_frame / working_frame / dimension)")

@@ -1,0 +1,100 @@
+"""/tf_static follows the model: the node's own latched tf2_msgs/TFMessage publisher (the real
+type, built from vendor/tf2_msgs) holds the newest registration for its child frame after every
+rebuild, the one tf_broadcast chooses, and nothing of it after a reset. Each check subscribes
+anew after the fact (a late joiner), from a node other than the publisher."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+TFMessage = pytest.importorskip("tf2_msgs.msg").TFMessage
+
+from geometry_msgs.msg import TransformStamped  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import qos_profile_rosout_default  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from rbc_registration.ros.conversions import transform_to_matrix  # noqa: E402
+from rbc_registration.ros.tf_static import STATIC_QOS, TOPIC  # noqa: E402
+from ros_helpers import wait_for  # noqa: E402
+from test_node import NodeTestBase  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+
+def _matrix(registration):
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = registration.rotation, registration.translation
+    return m
+
+
+class TestTfFollowsTheModel(NodeTestBase):
+
+    def late_tf(self, node):
+        """The latched /tf_static message of ``node``, as a subscriber created now gets it."""
+        return self.latest(node, TFMessage, TOPIC, qos=STATIC_QOS)
+
+    def entry(self, msg, child="tracker"):
+        entries = [t for t in msg.transforms if t.child_frame_id == child]
+        assert len(entries) <= 1, msg
+        return entries[0] if entries else None
+
+    def test_late_joiner_sees_the_newest_model_then_nothing_after_reset(self):
+        node = self.make_node(tf_broadcast="corrected")
+        models = []
+        # Three rebuilds from growing sets of measurements: three different registrations.
+        bounds = (0, 16, 30, self.n)
+        for start, stop in zip(bounds, bounds[1:]):
+            self.stream(node, range(start, stop))
+            models.append(self.recompute(node).model)
+        first, newest = _matrix(models[0].corrected), _matrix(models[-1].corrected)
+        assert np.abs(first - newest).max() > 1e-7  # the models really moved
+
+        msg = self.late_tf(node)
+        entry = self.entry(msg)
+        assert entry.header.frame_id == "world"
+        np.testing.assert_allclose(transform_to_matrix(entry), newest, atol=1e-12)
+        transform = self.latest(node, TransformStamped, f"/{node.get_name()}/transform")
+        assert entry == transform  # /tf_static and ~/transform carry the same message
+        infos = self.ros.client.get_publishers_info_by_topic(TOPIC)
+        assert {i.topic_type for i in infos} == {"tf2_msgs/msg/TFMessage"}
+
+        # tf_broadcast chooses which registration; 'none' takes the node's entry out.
+        node.set_parameters([Parameter("tf_broadcast", value="uncorrected")])
+        entry = self.entry(self.late_tf(node))
+        np.testing.assert_allclose(transform_to_matrix(entry), _matrix(models[-1].uncorrected),
+                                   atol=1e-12)
+        node.set_parameters([Parameter("tf_broadcast", value="none")])
+        assert self.entry(self.late_tf(node)) is None
+        node.set_parameters([Parameter("tf_broadcast", value="corrected")])
+        np.testing.assert_allclose(transform_to_matrix(self.entry(self.late_tf(node))), newest,
+                                   atol=1e-12)
+
+        assert self.srv(node, Trigger, "reset").success
+        assert self.entry(self.late_tf(node)) is None  # a TFMessage without the child frame
+        # A new model after the reset is published again.
+        self.stream(node)
+        model = self.recompute(node).model
+        np.testing.assert_allclose(transform_to_matrix(self.entry(self.late_tf(node))),
+                                   _matrix(model.corrected), atol=1e-12)
+
+    def test_without_tf2_msgs_the_node_warns_and_keeps_working(self, monkeypatch):
+        import rbc_registration.ros.tf_static as tf_static
+
+        monkeypatch.setattr(tf_static, "MISSING", "tf2_msgs is not importable (test)")
+        monkeypatch.setattr(tf_static.StaticTf.__init__, "__defaults__", (None,))
+        logs = []
+        sub = self.ros.client.create_subscription(Log, "/rosout", logs.append,
+                                                  qos_profile_rosout_default)
+        node = self.make_node()
+        wait_for(lambda: any(m.name == node.get_name() and m.level == Log.WARN
+                             and "static tf off: tf2_msgs is not importable" in m.msg
+                             for m in logs), what="the WARN naming tf2_msgs")
+        self.ros.client.destroy_subscription(sub)
+        self.stream(node)
+        model = self.recompute(node).model
+        transform = self.latest(node, TransformStamped, f"/{node.get_name()}/transform")
+        np.testing.assert_allclose(transform_to_matrix(transform), _matrix(model.corrected),
+                                   atol=1e-12)
+        assert self.ros.client.count_publishers(TOPIC) == 0
