@@ -1,5 +1,5 @@
 """The ``rbc-registration`` command: one parser, one module per subcommand (:mod:`.register`,
-:mod:`.reproduce`, :mod:`.evaluate`, :mod:`.replay`, :mod:`.synth_bag`).
+:mod:`.reproduce`, :mod:`.evaluate`, :mod:`.replay`, :mod:`.synth_bag`, :mod:`.export`).
 
 Building the parser imports only the standard library and the numpy-free constants
 (:mod:`rbc_registration.core.constants`, :mod:`rbc_registration.io.bag.records`); each
@@ -15,9 +15,9 @@ import sys
 from typing import Optional, Sequence
 
 from ..runtime import default_one_blas_thread
-from . import evaluate, register, replay, reproduce, synth_bag
+from . import evaluate, export, register, replay, reproduce, synth_bag
 
-SUBCOMMANDS = (register, reproduce, evaluate, replay, synth_bag)
+SUBCOMMANDS = (register, reproduce, evaluate, replay, synth_bag, export)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -39,7 +39,7 @@ from ..pipeline.snapshot import snapshot_json, snapshot_path, tidy_state_dir, wr
 from ..pipeline.state import EMPTY_STATE, ModelState, build_state
 from ..pipeline.worker import RecomputeWorker
 from . import conversions as conv
-from . import params
+from . import params, saved
 from .guards import guard_input, guard_service
 from .markers import markers_msg
 from .services import ServicesMixin
@@ -78,6 +78,8 @@ class RegistrationNode(ServicesMixin, Node):
         super().__init__(node_name, **kwargs)
         self._settings = params.declare(self)
         s = self._settings
+        # A calibration_file is read (and refused, naming why) before anything else starts.
+        self._loaded = saved.load(s.calibration_file, s) if s.calibration_file else None
         self._build = build
         self._write_snapshot = write_snapshot
         self._pub_lock = threading.Lock()
@@ -133,6 +135,14 @@ class RegistrationNode(ServicesMixin, Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._on_parameters_set)
 
+        if self._loaded is not None:  # publish what was registered before, until a live model
+            transform = saved.calibration_transform(self._loaded.calibration,
+                                                    self.get_clock().now().to_msg())
+            with self._pub_lock:
+                self._pub_transform.publish(transform)
+                self._tf_transforms = dict.fromkeys(("corrected", "uncorrected"), transform)
+                self._publish_tf()
+            self.get_logger().info(self._loaded.describe())
         self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
                                        self._on_worker_error, clock)
         if restored:
@@ -194,6 +204,7 @@ class RegistrationNode(ServicesMixin, Node):
                 self._pub_transform.publish(corrected)
                 self._pub_transform_u.publish(uncorrected)
                 self._tf_transforms = {"corrected": corrected, "uncorrected": uncorrected}
+                self._loaded = None  # the live model replaces a calibration_file
                 self._publish_tf()
             self._pub_markers.publish(markers)
         self._publish_status()
@@ -214,8 +225,12 @@ class RegistrationNode(ServicesMixin, Node):
 
     def status(self) -> RegistrationStatus:
         """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
-        return status_msg(self._state, self._settings, self._ingest.counters(),
-                          self.get_clock().now().to_msg())
+        msg = status_msg(self._state, self._settings, self._ingest.counters(),
+                         self.get_clock().now().to_msg())
+        loaded = self._loaded
+        if loaded is not None and self._state.model is None:
+            msg.message = "; ".join(filter(None, (loaded.describe(), msg.message)))
+        return msg
 
     def _publish_status(self) -> None:
         status = self.status()

@@ -16,6 +16,7 @@ from rbc_registration_interfaces.srv import CorrectTarget, CorrectTargets, SetFi
 from ..pipeline.settings import corrections_applied
 from ..pipeline.state import EMPTY_STATE
 from . import conversions as conv
+from . import saved
 from .markers import markers_msg
 
 RECOMPUTE_TIMEOUT_S = 60.0
@@ -33,6 +34,7 @@ class ServicesMixin:
     _generation: int
     _pub_markers: Any
     _tf_transforms: dict
+    _loaded: Any
     _publish_tf: Any
 
     def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
@@ -90,6 +92,7 @@ class ServicesMixin:
             self._generation += 1
             self._state = EMPTY_STATE
             self._tf_transforms = {}
+            self._loaded = None  # a calibration_file is forgotten too
             self._publish_tf()  # /tf_static without this node's child frame
         response.success, response.message = self._ingest.reset()
         self._publish_status()
@@ -110,8 +113,16 @@ class ServicesMixin:
         if not self._settings.state_dir:
             response.success, response.message = False, "state_dir is not set: nothing to save to"
             return response
+        state = self._state
         try:
-            response.success, response.message = True, f"saved {self._save(self._state)}"
+            snapshot = self._save(state)
+            path, command = saved.save(state, self._settings)
+        except ValueError as exc:  # no model: the snapshot is written, no calibration
+            response.success, response.message = False, f"{exc}; snapshot saved as {snapshot}"
+            return response
         except OSError as exc:
             response.success, response.message = False, f"save failed: {exc}"
+            return response
+        response.success = True
+        response.message = f"saved {path} (and {snapshot}); {command}"
         return response

@@ -1,0 +1,58 @@
+"""``rbc-registration export``: a calibration file (docs/CALIBRATION.md) from the node's snapshot
+(``state_dir/calibration.json``) or a ``register`` / ``evaluate --json`` report, and the forms
+ROS users load: the ``static_transform_publisher`` line and a launch snippet."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def add_parser(sub: Any) -> None:
+    """Add ``export`` to the subparsers of ``rbc-registration``."""
+    exp = sub.add_parser("export", help="write a calibration YAML from a node snapshot or a "
+                                        "JSON report; print the static_transform_publisher line")
+    exp.add_argument("source", type=Path, metavar="SNAPSHOT_OR_REPORT.json",
+                     help="state_dir/calibration.json of the node, or a register/evaluate --json "
+                          "report")
+    exp.add_argument("--out", type=Path, default=Path("calibration.yaml"),
+                     help="the calibration file to write (default calibration.yaml)")
+    exp.add_argument("--registration", choices=("corrected", "uncorrected"), default="corrected",
+                     help="which registration of the model (default corrected)")
+    exp.add_argument("--parent-frame", help="destination frame (default: the snapshot's; a "
+                                            "report: world)")
+    exp.add_argument("--child-frame", help="working frame (default: the snapshot's; a report: "
+                                           "tracker)")
+    exp.add_argument("--unit", choices=("m", "mm"),
+                     help="length unit of a report (default: its 'unit'); the file is in metres")
+    exp.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the YAML, print the static_transform_publisher line and the launch snippet."""
+    import json
+
+    from ..io.calibration import (launch_snippet, static_transform_publisher_command,
+                                  write_calibration)
+    from ..io.calibration_model import calibration_from_document
+
+    where = str(args.source)
+    try:
+        text = args.source.read_text(encoding="utf-8")
+        mtime = args.source.stat().st_mtime
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{where}: cannot be read: {exc}") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{where}: not valid JSON: {exc}") from None
+    cal = calibration_from_document(data, where, args.registration,
+                                    parent_frame=args.parent_frame,
+                                    child_frame=args.child_frame, unit=args.unit, mtime=mtime)
+    write_calibration(str(args.out), cal)
+    print(f"wrote {args.out}")
+    print(static_transform_publisher_command(cal))
+    print()
+    print(launch_snippet(cal), end="")
+    return 0

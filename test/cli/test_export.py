@@ -1,0 +1,117 @@
+"""``rbc-registration export``: the calibration YAML from a node snapshot and from a register
+report (millimetres converted to metres), the static_transform_publisher line and the launch
+snippet printed; bad input is one line, exit 2."""
+
+import json
+
+import numpy as np
+import pytest
+
+from rbc_registration import cli
+from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io.calibration import (read_calibration,
+                                             static_transform_publisher_command)
+from rbc_registration.io.calibration_model import calibration_from_state
+from rbc_registration.io.csv_io import write_fiducials
+from rbc_registration.pipeline.settings import Settings
+from rbc_registration.pipeline.snapshot import snapshot_json
+from rbc_registration.pipeline.state import build_state
+
+
+def _matrix(registration):
+    d = len(registration.rotation)
+    m = np.eye(4)
+    m[:d, :d], m[:d, 3] = registration.rotation, registration.translation
+    return m
+
+
+@pytest.fixture(scope="module")
+def node_state():
+    """A served model state as the node builds it (metres) and its settings."""
+    rng = np.random.default_rng(0)
+    settings = Settings.from_mapping({"working_frame": "laser", "destination_frame": "base",
+                                      "apply_corrections": "on", "state_dir": ""})
+    acc = FiducialAccumulator(3, "laser", "base", 0.005, 0.0)
+    truth = np.array([[x, y, z] for x in range(3) for y in range(3) for z in range(2)]) * 0.4
+    for _repeat in range(2):
+        for k, p in enumerate(truth):
+            working = p[[1, 0, 2]] * [1, -1, 1] + 0.5 + 1e-3 * np.sin(3 * p) \
+                + rng.normal(0, 3e-5, 3)
+            acc.add(f"F{k}", working, p)
+    return build_state(acc.fiducial_set(), settings, 1_700_000_000_500_000_000), settings
+
+
+@pytest.mark.parametrize("registration", ["corrected", "uncorrected"])
+def test_export_of_a_node_snapshot(tmp_path, capsys, node_state, registration):
+    state, settings = node_state
+    snap = tmp_path / "calibration.json"
+    snap.write_text(snapshot_json(state, "laser", "base", 3))
+    out = tmp_path / "cell.yaml"
+    assert cli.main(["export", str(snap), "--out", str(out), "--registration",
+                     registration]) == 0
+    cal = read_calibration(str(out))
+    model = state.model
+    np.testing.assert_allclose(cal.transform_matrix(), _matrix(getattr(model, registration)),
+                               atol=1e-12)
+    assert (cal.parent_frame, cal.child_frame, cal.registration) == ("base", "laser",
+                                                                     registration)
+    assert cal.decision.mode == "on" and cal.decision.apply and cal.decision.method == "paper"
+    assert cal.n_fiducials == 18 and cal.created.startswith("2023-11-14T22:13:20.5")
+    assert cal.sigma == pytest.approx(model.sigma, rel=1e-12)
+    # The node's own ~/save builds the same calibration from the state.
+    direct = calibration_from_state(state, settings, registration)
+    assert direct.to_mapping() == {**cal.to_mapping(), "package_version":
+                                   direct.package_version}
+    printed = capsys.readouterr().out
+    assert static_transform_publisher_command(cal) in printed.splitlines()
+    assert "executable='static_transform_publisher'" in printed and "'--frame-id', 'base'" \
+        in printed
+
+
+def test_export_of_a_register_report_in_mm(tmp_path, capsys):
+    cell = make_cell("RA", seed=3)  # 2D, millimetres
+    csv = tmp_path / "fiducials.csv"
+    write_fiducials(csv, cell.fiducial_ids, cell.fiducial_measurements,
+                    [t[None] for t in cell.fiducial_truth])
+    report = tmp_path / "report.json"
+    assert cli.main(["register", str(csv), "--json", str(report)]) == 0  # unit label mm
+    data = json.loads(report.read_text())
+    out = tmp_path / "cal.yaml"
+    assert cli.main(["export", str(report), "--out", str(out), "--parent-frame", "world",
+                     "--child-frame", "tracker"]) == 0
+    cal = read_calibration(str(out))
+    assert cal.dimension == 2 and cal.translation[2] == 0.0
+    np.testing.assert_allclose(cal.translation[:2],
+                               np.array(data["corrected"]["translation"]) * 1e-3, rtol=1e-12)
+    np.testing.assert_allclose(cal.rotation_matrix()[:2, :2], data["corrected"]["rotation"],
+                               atol=1e-9)
+    assert cal.fre_rms == pytest.approx(data["corrected"]["fre_rms"] * 1e-3, rel=1e-12)
+    assert cal.sigma_l == pytest.approx([v * 1e-3 for v in data["sigma_L"]], rel=1e-12)
+    assert cal.decision.mode == "auto"
+    assert cal.decision.apply == (data["recommendation"] == "apply")
+    assert "--frame-id world --child-frame-id tracker" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("content, message", [
+    ("{not json", "not valid JSON"),
+    ('{"format": "rbc_registration calibration 1", "model_valid": false, "error": "3 enabled"}',
+     "holds no model (3 enabled)"),
+    ('{"unit": "in", "interpolation": "paper"}', "unit 'in'"),
+    ('{"unit": "mm", "interpolation": "paper", "n_fiducials": 5, "sigma_L": [1.0], '
+     '"recommendation": "apply"}', "corrected: missing"),
+    ("[]", "not a JSON object"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, content, message):
+    src = tmp_path / "in.json"
+    src.write_text(content)
+    assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rbc-registration export: error: ") and message in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.yaml").exists()
+
+
+def test_missing_file(tmp_path, capsys):
+    assert cli.main(["export", str(tmp_path / "nope.json")]) == 2
+    assert "cannot be read" in capsys.readouterr().err

@@ -1,0 +1,103 @@
+"""Saved calibrations through a node restart: the first node registers and saves
+(``state_dir/calibration.yaml``); a second node with an EMPTY state_dir and only
+``calibration_file`` publishes the same transform on ~/transform and /tf_static before any
+measurement, says so in ~/status, and a live model replaces it once measurements arrive."""
+
+import os
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+TFMessage = pytest.importorskip("tf2_msgs.msg").TFMessage
+
+from geometry_msgs.msg import TransformStamped  # noqa: E402
+from rbc_registration_interfaces.msg import RegistrationStatus  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from rbc_registration.io.calibration import read_calibration  # noqa: E402
+from rbc_registration.ros.conversions import transform_to_matrix  # noqa: E402
+from rbc_registration.ros.node import RegistrationNode  # noqa: E402
+from rbc_registration.ros.tf_static import STATIC_QOS, TOPIC  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from test_node import NodeTestBase  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+
+class TestSavedCalibration(NodeTestBase):
+
+    def transform(self, node):
+        return self.latest(node, TransformStamped, f"/{node.get_name()}/transform")
+
+    def tf_entry(self, node):
+        msg = self.latest(node, TFMessage, TOPIC, qos=STATIC_QOS)
+        return [t for t in msg.transforms if t.child_frame_id == "tracker"]
+
+    def test_round_trip_through_a_restart_with_an_empty_state_dir(self, tmp_path):
+        first_dir, second_dir = tmp_path / "first", tmp_path / "second"
+        first = self.make_node(state_dir=str(first_dir), apply_corrections="on")
+        self.stream(first)
+        model = self.recompute(first).model
+        saved = self.srv(first, Trigger, "save")
+        path = first_dir / "calibration.yaml"
+        assert saved.success, saved.message
+        assert str(path) in saved.message and "calibration.json" in saved.message
+        assert "ros2 run tf2_ros static_transform_publisher --x " in saved.message
+        cal = read_calibration(str(path))
+        assert (cal.parent_frame, cal.child_frame, cal.registration) == ("world", "tracker",
+                                                                         "corrected")
+        assert cal.decision.apply and cal.n_fiducials == len(model.ids)
+        before = transform_to_matrix(self.transform(first))
+        self.ros.remove(first)  # the restart: the first node is gone
+        self.nodes.remove(first)
+
+        second_dir.mkdir()
+        second = self.make_node(state_dir=str(second_dir), calibration_file=str(path))
+        assert second.status().n_measurements == 0
+        np.testing.assert_allclose(transform_to_matrix(self.transform(second)), before,
+                                   atol=1e-12)
+        (entry,) = self.tf_entry(second)
+        np.testing.assert_allclose(transform_to_matrix(entry), before, atol=1e-12)
+        status = self.latest(second, RegistrationStatus, f"/{second.get_name()}/status")
+        assert f"calibration from {path}" in status.message and not status.model_valid
+        assert not self.correct(second, self.cell["targets"][0]).success  # no model: no ε(T)
+        assert [n for n in os.listdir(second_dir) if n != "journal.jsonl"] == []
+
+        # Measurements arrive: the live model (here of half the fiducials) replaces the file.
+        half = [k for k in range(self.n) if self.cell["fid"][k] % 2 == 0]
+        self.stream(second, half)
+        live = self.recompute(second).model
+        assert np.abs(live.corrected.translation - model.corrected.translation).max() > 1e-7
+        live_m = np.eye(4)
+        live_m[:3, :3], live_m[:3, 3] = live.corrected.rotation, live.corrected.translation
+        np.testing.assert_allclose(transform_to_matrix(self.transform(second)), live_m,
+                                   atol=1e-12)
+        np.testing.assert_allclose(transform_to_matrix(self.tf_entry(second)[0]), live_m,
+                                   atol=1e-12)
+        assert "calibration from" not in second.status().message
+
+    def test_a_calibration_of_other_frames_or_a_bad_file_is_refused(self, tmp_path):
+        node = self.make_node(state_dir=str(tmp_path / "a"))
+        self.stream(node)
+        self.recompute(node)
+        assert self.srv(node, Trigger, "save").success
+        path = str(tmp_path / "a" / "calibration.yaml")
+        for params, match in (({"working_frame": "laser"}, "child_frame is 'tracker', but the "
+                                                          "node has 'laser'"),
+                              ({"dimension": 2}, "dimension is 3, but the node has 2")):
+            with pytest.raises(ValueError, match=match):
+                RegistrationNode("reg_badcal", context=self.ros.context, parameter_overrides=[
+                    Parameter("state_dir", value=""), Parameter("calibration_file", value=path),
+                    *(Parameter(k, value=v) for k, v in params.items())])
+        (tmp_path / "bad.yaml").write_text("format: rbc_registration_calibration\n")
+        with pytest.raises(ValueError, match="bad.yaml: .*missing"):
+            RegistrationNode("reg_badcal2", context=self.ros.context, parameter_overrides=[
+                Parameter("state_dir", value=""),
+                Parameter("calibration_file", value=str(tmp_path / "bad.yaml"))])
+
+    def test_save_without_a_model_says_why(self, tmp_path):
+        node = self.make_node(state_dir=str(tmp_path))
+        r = self.srv(node, Trigger, "save")
+        assert not r.success and "no model to save as a calibration yet" in r.message
+        assert not (tmp_path / "calibration.yaml").exists()
