@@ -19,12 +19,16 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from rbc_registration.ros.conversions import transform_to_matrix  # noqa: E402
 from rbc_registration.ros.process import start_node, stop_process  # noqa: E402
-from rbc_registration.ros.tf_static import STATIC_QOS, TOPIC  # noqa: E402
+from rbc_registration.ros.tf_static import TOPIC  # noqa: E402
 from ros_helpers import expected_state, make_cell, pair_msg, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.ros
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# A /tf_static reader as tf2_ros's StaticListenerQoS: depth 100, so the latched messages of
+# several publishers arriving together are all kept (depth 1 would keep only the last).
+TF_LISTENER = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 NAME = "registration_node"  # the same name in both namespaces
 
 
@@ -101,7 +105,7 @@ def test_two_namespaced_nodes_register_two_cells_each_in_its_own_state_dir(tmp_p
         entries = {}
         sub = client.create_subscription(
             TFMessage, TOPIC, lambda m: entries.update({t.child_frame_id: t for t in
-                                                        m.transforms}), STATIC_QOS)
+                                                        m.transforms}), TF_LISTENER)
         wait_for(lambda: {"tracker_a", "tracker_b"} <= set(entries), timeout=30,
                  what="both cells on /tf_static")
         client.destroy_subscription(sub)
