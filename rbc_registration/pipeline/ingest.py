@@ -109,19 +109,28 @@ class Ingest:
         self._acc.commit(record)
         return True
 
-    def _measurement_locked(self, args: PairArgs) -> bool:
+    def _measurement_locked(self, args: PairArgs) -> tuple[Optional[Measurement], str]:
+        """Validate, journal and count one measurement: ``(record, "")`` or ``(None, why)``."""
         now = self._clock() if self._clock is not None and self._acc.max_stamp_age > 0 else None
         try:
             record = self._acc.prepare(*args, now_s=now)
         except RejectedMeasurement as exc:
             self._rejected(exc)
-            return False
-        return self._accept(record)
+            return None, f"rejected ({exc.reason}): {exc.message}"
+        if not self._accept(record):
+            return None, f"journal write failed, not accepted: {self.journal_error}"
+        return record, ""
+
+    def take(self, args: PairArgs) -> tuple[Optional[Measurement], str]:
+        """One measurement (e.g. ``~/take_sample``): ``(the accepted record, "")`` or
+        ``(None, the reason it was not accepted)``."""
+        with self._lock:
+            return self._measurement_locked(args)
 
     def measurement(self, args: PairArgs) -> bool:
         """One FiducialPair measurement; True when accepted (journaled and counted)."""
         with self._lock:
-            return self._measurement_locked(args)
+            return self._measurement_locked(args)[0] is not None
 
     def point(self, stream: str, xyz: Any, frame_id: str, stamp_s: float) -> bool:
         """One ``~/working_point`` / ``~/destination_point``; True when it completed a pair that
@@ -139,7 +148,7 @@ class Ingest:
             for pair in result.pairs:
                 accepted |= self._measurement_locked(PairArgs(
                     None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
-                    pair.destination.frame_id, pair.stamp_s))
+                    pair.destination.frame_id, pair.stamp_s))[0] is not None
             return accepted
 
     def set_enabled(self, fiducial_id: str, enabled: bool) -> tuple[bool, str]:

@@ -28,7 +28,8 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus
-from rbc_registration_interfaces.srv import CorrectTarget, CorrectTargets, SetFiducialEnabled
+from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, SetFiducialEnabled,
+                                             TakeSample)
 
 from ..core.accumulator import FiducialAccumulator
 from ..core.pairing import DESTINATION, WORKING, StampPairer
@@ -39,7 +40,7 @@ from ..pipeline.snapshot import snapshot_json, snapshot_path, tidy_state_dir, wr
 from ..pipeline.state import EMPTY_STATE, ModelState, build_state
 from ..pipeline.worker import RecomputeWorker
 from . import conversions as conv
-from . import params, saved
+from . import params, samples, saved
 from .guards import guard_input, guard_service
 from .markers import markers_msg
 from .services import ServicesMixin
@@ -80,6 +81,9 @@ class RegistrationNode(ServicesMixin, Node):
         s = self._settings
         # A calibration_file is read (and refused, naming why) before anything else starts.
         self._loaded = saved.load(s.calibration_file, s) if s.calibration_file else None
+        if samples.source_error(s.sample_destination_source):
+            raise ValueError(samples.source_error(s.sample_destination_source))
+        self._samples = samples.SampleTaker(self)
         self._build = build
         self._write_snapshot = write_snapshot
         self._pub_lock = threading.Lock()
@@ -127,7 +131,8 @@ class RegistrationNode(ServicesMixin, Node):
                 (SetFiducialEnabled, "~/set_fiducial_enabled", self._on_set_fiducial_enabled),
                 (Trigger, "~/reset", self._on_reset),
                 (Trigger, "~/recompute", self._on_recompute),
-                (Trigger, "~/save", self._on_save)):
+                (Trigger, "~/save", self._on_save),
+                (TakeSample, "~/take_sample", self._on_take_sample)):
             self.create_service(srv_type, name, guard_service(self.get_logger(), name, callback),
                                 callback_group=services)
         self.create_timer(s.status_period, self._publish_status,
@@ -158,13 +163,17 @@ class RegistrationNode(ServicesMixin, Node):
         if self._ingest.measurement(conv.fiducial_pair_to_args(msg)):
             self._worker.notify()
 
-    def _on_working_point(self, msg: PointStamped) -> None:
-        if self._ingest.point(WORKING, *conv.point_stamped_to_tuple(msg)):
+    def _on_point(self, stream: str, msg: PointStamped) -> None:
+        self._samples.update(stream, msg)  # the latest point, for ~/take_sample
+        if self._settings.point_mode == "pair" and self._ingest.point(
+                stream, *conv.point_stamped_to_tuple(msg)):
             self._worker.notify()
 
+    def _on_working_point(self, msg: PointStamped) -> None:
+        self._on_point(WORKING, msg)
+
     def _on_destination_point(self, msg: PointStamped) -> None:
-        if self._ingest.point(DESTINATION, *conv.point_stamped_to_tuple(msg)):
-            self._worker.notify()
+        self._on_point(DESTINATION, msg)
 
     # -- model --------------------------------------------------------------------------------
     @property
@@ -265,6 +274,9 @@ class RegistrationNode(ServicesMixin, Node):
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> Any:
         changes = {p.name: p.value for p in parameters if p.name in SPECS}
+        error = samples.source_error(changes.get("sample_destination_source", ""))
+        if error:
+            return SetParametersResult(successful=False, reason=error)
         try:
             self._settings.replace(**changes)
         except ValueError as exc:

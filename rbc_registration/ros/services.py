@@ -11,12 +11,13 @@ from typing import Any
 from geometry_msgs.msg import PointStamped
 from std_srvs.srv import Trigger
 
-from rbc_registration_interfaces.srv import CorrectTarget, CorrectTargets, SetFiducialEnabled
+from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, SetFiducialEnabled,
+                                             TakeSample)
 
 from ..pipeline.settings import corrections_applied
 from ..pipeline.state import EMPTY_STATE
 from . import conversions as conv
-from . import saved
+from . import samples, saved
 from .markers import markers_msg
 
 RECOMPUTE_TIMEOUT_S = 60.0
@@ -35,6 +36,7 @@ class ServicesMixin:
     _pub_markers: Any
     _tf_transforms: dict
     _loaded: Any
+    _samples: Any
     _publish_tf: Any
 
     def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
@@ -125,4 +127,21 @@ class ServicesMixin:
             return response
         response.success = True
         response.message = f"saved {path} (and {snapshot}); {command}"
+        return response
+
+    def _on_take_sample(self, request: TakeSample.Request,
+                        response: TakeSample.Response) -> TakeSample.Response:
+        args, error = self._samples.pair(request.fiducial_id, self._settings)
+        record = None
+        if args is not None:
+            record, error = self._ingest.take(args)
+        if record is None:
+            response.success, response.message = False, f"no sample taken: {error}"
+            return response
+        self._worker.notify()
+        response.pair = samples.pair_message(record, args, self._settings)
+        response.success = True
+        response.message = (f"recorded fiducial {record.fiducial_id!r}"
+                            f"{' (id by proximity)' if record.auto_id else ''}; the model is "
+                            f"rebuilt after debounce")
         return response

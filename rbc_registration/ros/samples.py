@@ -1,0 +1,126 @@
+"""``~/take_sample``: record one fiducial now from the latest ``~/working_point`` and
+``~/destination_point`` (or a tf lookup of the destination point), each checked against
+``sample_max_age`` [s] on the node clock. The pair goes through the node's ingestion (validation,
+journal, counters) like every measurement. Units: metres.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, NamedTuple, Optional
+
+from geometry_msgs.msg import PointStamped
+
+from rbc_registration_interfaces.msg import FiducialPair
+
+from ..core.pairing import DESTINATION, WORKING
+from ..pipeline.ingest import PairArgs
+from ..pipeline.settings import Settings
+from . import conversions as conv
+
+try:  # tf2_ros (tf2_ros_py) is not on PyPI: without it the 'tf' source is refused.
+    from tf2_ros import Buffer, TransformException, TransformListener
+    TF2_ROS_MISSING = ""
+except ImportError as _exc:  # pragma: no cover - depends on the installation
+    Buffer = TransformListener = None
+    TransformException = LookupError
+    TF2_ROS_MISSING = f"tf2_ros is not importable ({_exc})"
+
+
+def source_error(source: str) -> Optional[str]:
+    """Why ``sample_destination_source`` = ``source`` cannot be used here, or ``None``."""
+    if source == "tf" and TF2_ROS_MISSING:
+        return f"sample_destination_source 'tf' needs tf2_ros: {TF2_ROS_MISSING}"
+    return None
+
+
+class Latest(NamedTuple):
+    """A point as received: the message and when (node clock [ns])."""
+
+    msg: PointStamped
+    received_ns: int
+
+
+class SampleTaker:
+    """The latest working and destination points of a node, and the tf buffer of the 'tf'
+    source (created when first needed).
+
+    :param node: the ``rclpy.node.Node`` (its clock and, for tf, a listener).
+    """
+
+    def __init__(self, node: Any) -> None:
+        self._node = node
+        self._lock = threading.Lock()
+        self._latest: dict[str, Latest] = {}
+        self._buffer: Any = None
+
+    def update(self, stream: str, msg: PointStamped) -> None:
+        """Remember ``msg`` as the latest point of ``stream`` (``working`` / ``destination``)."""
+        with self._lock:
+            self._latest[stream] = Latest(msg, self._node.get_clock().now().nanoseconds)
+
+    def _point(self, stream: str, topic: str, settings: Settings, now_ns: int) -> Any:
+        latest = self._latest.get(stream)
+        if latest is None:
+            return f"no {topic} received yet"
+        age = (now_ns - latest.received_ns) * 1e-9
+        if age > settings.sample_max_age:
+            return (f"the latest {topic} is stale: received {age:.3g} s ago, more than "
+                    f"sample_max_age {settings.sample_max_age:g} s")
+        return latest.msg
+
+    def _tf_point(self, settings: Settings) -> Any:
+        error = source_error("tf")
+        if error:
+            return error
+        if not settings.sample_tf_child:
+            return "sample_tf_child is empty: set the frame whose origin is the destination point"
+        if self._buffer is None:
+            self._buffer = Buffer()
+            self._listener = TransformListener(self._buffer, self._node)
+        parent = settings.sample_tf_parent or settings.destination_frame
+        try:
+            t = self._buffer.lookup_transform(parent, settings.sample_tf_child,
+                                              conv.nanoseconds_to_stamp(0))
+        except TransformException as exc:  # lookup, connectivity or extrapolation error
+            return f"tf lookup {parent} <- {settings.sample_tf_child} failed: {exc}"
+        age = (self._node.get_clock().now().nanoseconds
+               - (t.header.stamp.sec * 1_000_000_000 + t.header.stamp.nanosec)) * 1e-9
+        static = t.header.stamp.sec == 0 and t.header.stamp.nanosec == 0
+        if not static and age > settings.sample_max_age:
+            return (f"tf {parent} <- {settings.sample_tf_child} is stale: {age:.3g} s old, more "
+                    f"than sample_max_age {settings.sample_max_age:g} s")
+        msg = PointStamped()
+        msg.header = t.header
+        v = t.transform.translation
+        msg.point.x, msg.point.y, msg.point.z = v.x, v.y, v.z
+        return msg
+
+    def pair(self, fiducial_id: str, settings: Settings) -> tuple[Optional[PairArgs], str]:
+        """The measurement to record now: ``(PairArgs, "")``, or ``(None, why not)`` naming the
+        missing or stale point."""
+        now_ns = self._node.get_clock().now().nanoseconds
+        with self._lock:
+            working = self._point(WORKING, "~/working_point", settings, now_ns)
+            destination = (self._point(DESTINATION, "~/destination_point", settings, now_ns)
+                           if settings.sample_destination_source == "topic" else None)
+        if destination is None:
+            destination = self._tf_point(settings)
+        errors = [p for p in (working, destination) if isinstance(p, str)]
+        if errors:
+            return None, "; ".join(errors)
+        (w, w_frame, stamp), (d, d_frame, _) = (conv.point_stamped_to_tuple(working),
+                                                conv.point_stamped_to_tuple(destination))
+        return PairArgs(fiducial_id or None, w, d, w_frame, d_frame, stamp), ""
+
+
+def pair_message(record: Any, args: PairArgs, settings: Settings) -> FiducialPair:
+    """The recorded measurement as a ``FiducialPair`` (its assigned id; 2D: z as received)."""
+    msg = FiducialPair()
+    msg.header.frame_id = settings.working_frame
+    msg.header.stamp = conv.nanoseconds_to_stamp(int(round(args.stamp_s * 1e9)))
+    msg.fiducial_id = record.fiducial_id
+    msg.working_point = conv.array_to_point(args.working_xyz)
+    msg.destination_frame_id = settings.destination_frame
+    msg.destination_point = conv.array_to_point(args.destination_xyz)
+    return msg
