@@ -34,6 +34,31 @@ _AUTO_ID = re.compile(r"^auto-(\d+)$")
 MAX_ID_LENGTH = 256
 
 
+def _check_id(fiducial_id: object) -> None:
+    """The rule for a given fiducial id (live and on replay)."""
+    if not isinstance(fiducial_id, str):
+        raise RejectedMeasurement("malformed", f"fiducial_id must be a string, "
+                                               f"got {quote(fiducial_id)}")
+    if len(fiducial_id) > MAX_ID_LENGTH or any(c in fiducial_id for c in "\n\r\0"):
+        raise RejectedMeasurement("malformed", f"fiducial_id must be at most {MAX_ID_LENGTH} "
+                                               f"characters without line breaks, "
+                                               f"got {quote(fiducial_id)}")
+
+
+def _check_stamp(stamp_s: object) -> float:
+    """The stamp as a finite float (live and on replay)."""
+    if isinstance(stamp_s, bool):
+        raise RejectedMeasurement("malformed", f"stamp must be a number, got {stamp_s!r}")
+    try:
+        stamp = float(stamp_s)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise RejectedMeasurement("malformed", f"stamp must be a number, "
+                                               f"got {quote(stamp_s)}") from None
+    if not math.isfinite(stamp):
+        raise RejectedMeasurement("malformed", f"stamp must be finite, got {stamp_s!r}")
+    return stamp
+
+
 def _positive(name: str, value: float, allow_zero: bool = False) -> float:
     try:
         v = float(value)
@@ -115,16 +140,16 @@ class FiducialAccumulator:
         try:
             values = tuple(float(v) for v in xyz)  # type: ignore[union-attr]
         except (TypeError, ValueError):
-            raise self.reject("malformed", f"{name} must be a sequence of numbers, "
+            raise RejectedMeasurement("malformed", f"{name} must be a sequence of numbers, "
                                             f"got {quote(xyz)}") from None
         if len(values) not in (3, self.dimension):
-            raise self.reject("malformed", f"{name} must have 3 or {self.dimension} "
+            raise RejectedMeasurement("malformed", f"{name} must have 3 or {self.dimension} "
                                             f"coordinates, got {len(values)}")
         if not all(map(math.isfinite, values)):
-            raise self.reject("nonfinite", f"{name} has NaN or inf: {list(values)}")
+            raise RejectedMeasurement("nonfinite", f"{name} has NaN or inf: {list(values)}")
         if max(map(abs, values)) > MAX_ABS_COORDINATE:
             # Finite, but squaring it overflows: the model could not be built any more.
-            raise self.reject("nonfinite", f"{name} has a coordinate beyond "
+            raise RejectedMeasurement("nonfinite", f"{name} has a coordinate beyond "
                                            f"±{MAX_ABS_COORDINATE:g}: {list(values)}")
         return values[:self.dimension]
 
@@ -144,28 +169,26 @@ class FiducialAccumulator:
         :raises RejectedMeasurement: with reason frame, nonfinite, outlier, malformed or stale
             (the rejection is counted in :attr:`rejected`).
         """
-        if fiducial_id is not None and not isinstance(fiducial_id, str):
-            raise self.reject("malformed", f"fiducial_id must be a string, "
-                                            f"got {quote(fiducial_id)}")
-        if fiducial_id is not None and (len(fiducial_id) > MAX_ID_LENGTH
-                                        or any(c in fiducial_id for c in "\n\r\0")):
-            raise self.reject("malformed", f"fiducial_id must be at most {MAX_ID_LENGTH} "
-                                            f"characters without line breaks, "
-                                            f"got {quote(fiducial_id)}")
+        try:
+            return self._prepare(fiducial_id, working_xyz, destination_xyz, working_frame,
+                                 destination_frame, stamp_s, now_s)
+        except RejectedMeasurement as exc:
+            self.rejected[exc.reason] += 1
+            raise
+
+    def _prepare(self, fiducial_id: Optional[str], working_xyz: ArrayLike,
+                 destination_xyz: ArrayLike, working_frame: str, destination_frame: str,
+                 stamp_s: float, now_s: Optional[float]) -> Measurement:
+        if fiducial_id is not None:
+            _check_id(fiducial_id)
         for name, got, want in (("working frame", working_frame, self.working_frame),
                                 ("destination frame", destination_frame,
                                  self.destination_frame)):
             if not isinstance(got, str):
-                raise self.reject("malformed", f"{name} must be a string, got {quote(got)}")
+                raise RejectedMeasurement("malformed", f"{name} must be a string, got {quote(got)}")
             if got and got != want:
-                raise self.reject("frame", f"{name} must be {want!r}, got {quote(got)}")
-        try:
-            stamp = float(stamp_s)
-        except (TypeError, ValueError):
-            raise self.reject("malformed", f"stamp must be a number, "
-                                            f"got {quote(stamp_s)}") from None
-        if not math.isfinite(stamp):
-            raise self.reject("malformed", f"stamp must be finite, got {stamp_s!r}")
+                raise RejectedMeasurement("frame", f"{name} must be {want!r}, got {quote(got)}")
+        stamp = _check_stamp(stamp_s)
         if self.max_stamp_age > 0 and now_s is not None:
             self._check_age(stamp, float(now_s))
         w = self._coords("working point", working_xyz)
@@ -180,7 +203,7 @@ class FiducialAccumulator:
                                       ("destination", d, fiducial.mean_d())):
                 dist = math.dist(point, mean)
                 if dist > self.outlier_distance:
-                    raise self.reject(
+                    raise RejectedMeasurement(
                         "outlier", f"fiducial {fid!r}: {name} point is {dist:.6g} from the mean "
                                    f"of its {fiducial.n} earlier repeat(s), more than "
                                    f"outlier_distance {self.outlier_distance:g}")
@@ -189,11 +212,37 @@ class FiducialAccumulator:
     def _check_age(self, stamp: float, now: float) -> None:
         age = now - stamp
         if age > self.max_stamp_age:
-            raise self.reject("stale", f"stamp {stamp:.3f} s is {age:.3g} s older than the clock "
-                                       f"({now:.3f} s); max_stamp_age is {self.max_stamp_age:g} s")
+            raise RejectedMeasurement("stale", f"stamp {stamp:.3f} s is {age:.3g} s older than "
+                                               f"the clock ({now:.3f} s); max_stamp_age is "
+                                               f"{self.max_stamp_age:g} s")
         if -age > self.max_stamp_age:
-            raise self.reject("stale", f"stamp {stamp:.3f} s is {-age:.3g} s ahead of the clock "
-                                       f"({now:.3f} s); max_stamp_age is {self.max_stamp_age:g} s")
+            raise RejectedMeasurement("stale", f"stamp {stamp:.3f} s is {-age:.3g} s ahead of "
+                                               f"the clock ({now:.3f} s); max_stamp_age is "
+                                               f"{self.max_stamp_age:g} s")
+
+    def check_record(self, record: Record) -> None:
+        """The live value checks of :meth:`prepare` on a record read back from a journal: the
+        id rules, finite stamp, finite coordinates within ±``MAX_ABS_COORDINATE``, the
+        dimension (the parameter-dependent checks — frames, stamp age, outliers — were decided
+        when the record was accepted and are not repeated). Nothing is counted.
+
+        :raises RejectedMeasurement: naming what is wrong.
+        """
+        if isinstance(record, EnabledChange):
+            _check_id(record.fiducial_id)
+            return
+        if not isinstance(record, Measurement):
+            raise RejectedMeasurement("malformed", f"not a journal record: {quote(record)}")
+        if not record.fiducial_id:
+            raise RejectedMeasurement("malformed", "fiducial_id is empty")
+        _check_id(record.fiducial_id)
+        _check_stamp(record.stamp_s)
+        for name, xyz in (("working point", record.working),
+                          ("destination point", record.destination)):
+            if len(xyz) != self.dimension:
+                raise RejectedMeasurement("malformed", f"{name} has {len(xyz)} coordinates, "
+                                                       f"expected {self.dimension}")
+            self._coords(name, xyz)
 
     def _nearest(self, destination: tuple[float, ...]) -> Optional[str]:
         if not self._order:
@@ -287,8 +336,9 @@ class FiducialAccumulator:
     def restore(self, records: Iterable[Record]) -> list[str]:
         """Clear, then commit ``records`` in order: the state after the same accepted
         measurements and enable changes, whatever the parameters were then. Rejection counters
-        start from zero (rejections are not records). A record that does not fit (another
-        dimension, an enable change of an unknown id) is skipped.
+        start from zero (rejections are not records). A record that fails the live value checks
+        (:meth:`check_record`: NaN, inf, beyond ±1e150, a bad id or stamp) or does not fit
+        (another dimension, an enable change of an unknown id) is skipped.
 
         :return: one message per skipped record (empty when all fitted).
         """
@@ -296,8 +346,9 @@ class FiducialAccumulator:
         errors = []
         for k, record in enumerate(records):
             try:
+                self.check_record(record)
                 self.commit(record)
-            except (TypeError, ValueError) as exc:
+            except (TypeError, ValueError) as exc:   # RejectedMeasurement is a ValueError
                 errors.append(f"record {k} skipped: {exc}")
         return errors
 

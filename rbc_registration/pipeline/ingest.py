@@ -41,6 +41,7 @@ class Counters(NamedTuple):
     n_disabled: int
     n_journal_failures: int = 0
     journal_error: str = ""
+    n_replay_skipped: int = 0
 
 
 class Ingest:
@@ -69,11 +70,14 @@ class Ingest:
         self._last_log: dict[str, float] = {}
         self.journal_error = ""      # the last journal write error; "" once a write succeeds
         self.n_journal_failures = 0  # records refused because the journal could not be written
+        self.n_replay_skipped = 0    # journal lines skipped on replay (corrupt or invalid)
 
     def restore(self) -> int:
         """Replay the journal (if any) into the accumulator; return the measurements restored.
+        Lines that are corrupt (checksum), unparsable or fail the live validation are skipped,
+        logged and counted (:attr:`n_replay_skipped`).
 
-        :raises persistence.JournalMismatch: when the journal belongs to another setup.
+        :raises journal.JournalMismatch: when the journal belongs to another setup.
         """
         if self._journal is None:
             return 0
@@ -81,8 +85,13 @@ class Ingest:
         for warning in warnings:
             self._log.warning(warning)
         with self._lock:
-            for error in self._acc.restore(records):
+            errors = self._acc.restore(records)
+            for error in errors:
                 self._log.warning(f"journal: {error}")
+            self.n_replay_skipped = self._journal.n_skipped + len(errors)
+            if self.n_replay_skipped:
+                self._log.warning(f"journal replay skipped {self.n_replay_skipped} record(s); "
+                                  f"restored {self._acc.n_measurements} measurements")
             return self._acc.n_measurements
 
     def _rejected(self, exc: RejectedMeasurement) -> None:
@@ -204,7 +213,8 @@ class Ingest:
         """Measurement and rejection counters now."""
         with self._lock:
             return Counters(self._acc.n_measurements, dict(self._acc.rejected),
-                            self._acc.n_disabled, self.n_journal_failures, self.journal_error)
+                            self._acc.n_disabled, self.n_journal_failures, self.journal_error,
+                            self.n_replay_skipped)
 
     def close(self) -> None:
         """Close the journal."""

@@ -8,6 +8,25 @@ costs a disk sync per record). On open a torn last line (a write cut short) is s
 warning and cut off so that appends stay line-aligned; an unreadable line elsewhere is skipped
 with a warning. Floats are written with ``repr`` precision, so replay is bit-exact.
 
+The journal's content is input, read as carefully as a message (version 2):
+
+- every record ends with ``"c":"<crc32>"``, the CRC-32 of the setup's digest (a hash of the
+  header: version, frames, dimension) followed by the record's bytes: a flipped digit is
+  detected and the record skipped, and a record written for another setup never verifies, so a
+  journal whose header line was lost is refused by a node configured differently
+  (:class:`JournalMismatch`);
+- lines longer than :data:`MAX_LINE_BYTES`, integers of more than :data:`MAX_INT_DIGITS`
+  digits, ``NaN``/``Infinity`` and more than :data:`MAX_BRACKETS` brackets (nesting) are
+  refused before or while parsing; a record must have exactly the fields and types this module
+  writes (:func:`record_from_object`); the accumulator's live value checks then run on it on
+  replay (``FiducialAccumulator.restore``);
+- the file is opened without following symlinks and must be a regular file
+  (:mod:`rbc_registration.pipeline.files`), at most :data:`MAX_JOURNAL_BYTES`; created 0600.
+
+A version 1 journal (no checksums) is still read, its records validated the same way, and
+rewritten as version 2 at once (atomically; the old file is kept as
+``journal.jsonl.v1.<time>.bak``).
+
 A record that cannot be written (disk full, file-size limit, I/O error) raises ``OSError`` and
 leaves nothing behind: a partly written line is cut off again at once, so the record can never
 reappear later (the caller does not count it).
@@ -18,16 +37,30 @@ reappear later (the caller does not count it).
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
+import math
 import os
+import re
 import time
+import zlib
 from typing import Any, Iterable, Optional
 
 from ..core.accumulator import EnabledChange, Measurement, Record
-from .snapshot import SNAPSHOT_NAME, fsync_dir
+from .files import open_private, private_dir, read_fd
+from .snapshot import SNAPSHOT_NAME, fsync_dir, write_atomic
 
 JOURNAL_NAME = "journal.jsonl"
-JOURNAL_VERSION = 1
+JOURNAL_VERSION = 2
+#: Versions this module reads (1: without record checksums, rewritten as 2 on load).
+READABLE_VERSIONS = (1, 2)
+#: Bounds on the journal's content (a record is < 1 kB: ids are at most 256 characters).
+MAX_LINE_BYTES = 8192
+MAX_INT_DIGITS = 20
+MAX_BRACKETS = 4
+MAX_JOURNAL_BYTES = 8 << 30
+_SEAL = re.compile(rb',"c":"([0-9a-f]{8})"\}$')
+_STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"')
 
 
 class JournalMismatch(ValueError):
@@ -77,107 +110,232 @@ def record_to_json(record: Record) -> str:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False)
 
 
+def setup_digest(header: dict[str, Any]) -> bytes:
+    """The digest every record's checksum includes: SHA-256 of the canonical header (version,
+    frames, dimension), truncated to 16 hex digits."""
+    canonical = json.dumps(header, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canonical.encode("utf-8")).hexdigest()[:16].encode("ascii")
+
+
+def seal(body: bytes, digest: bytes) -> bytes:
+    """``body`` (a JSON object) with its checksum field ``"c"`` appended."""
+    return body[:-1] + b',"c":"%08x"}' % zlib.crc32(digest + body)
+
+
+def unseal(line: bytes, digest: bytes) -> bytes:
+    """The record of a sealed line, without its checksum field.
+
+    :raises ValueError: when the line has no checksum or it does not match (a changed byte, or
+        a record written for another setup).
+    """
+    match = _SEAL.search(line)
+    if match is None:
+        raise ValueError("no checksum")
+    body = line[:match.start()] + b"}"
+    if b"%08x" % zlib.crc32(digest + body) != match.group(1):
+        raise ValueError("checksum mismatch (corrupt, or written for another setup)")
+    return body
+
+
+def _bounded_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise ValueError(f"integer of {len(text)} digits")
+    return int(text)
+
+
+def _no_constant(name: str) -> None:
+    raise ValueError(f"{name} is not a number")
+
+
+def parse_line(text: str) -> Any:
+    """``json.loads`` with the journal's bounds (see the module docstring).
+
+    :raises ValueError: naming the bound that was exceeded.
+    """
+    if len(text) > MAX_LINE_BYTES:
+        raise ValueError(f"line of {len(text)} characters, more than {MAX_LINE_BYTES}")
+    brackets = sum(map(_STRINGS.sub("", text).count, "[{"))
+    if brackets > MAX_BRACKETS:
+        raise ValueError(f"{brackets} brackets, more than {MAX_BRACKETS} (nesting)")
+    return json.loads(text, parse_int=_bounded_int, parse_constant=_no_constant)
+
+
 def record_from_json(line: str) -> Record:
-    """Parse one journal line.
+    """Parse one journal record (without its checksum field).
 
     :raises ValueError: naming what is wrong with the line.
     """
-    return record_from_object(json.loads(line), line)
+    return record_from_object(parse_line(line), line)
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def record_from_object(obj: Any, line: str = "") -> Record:
-    """A journal record from its parsed JSON object (see :func:`record_from_json`)."""
+    """A journal record from its parsed JSON object: exactly the fields and types
+    :func:`record_to_json` writes (see :func:`record_from_json`)."""
     if not isinstance(obj, dict):
         raise ValueError(f"a journal record must be a JSON object, got {line[:80]!r}")
     kind = obj.get("t")
+    keys = set(obj) - {"c"}
     if kind == "m":
-        w, d = obj["w"], obj["d"]
-        if not all(isinstance(v, (int, float)) for v in [*w, *d]):
+        if not {"t", "id", "w", "d", "s"} <= keys <= {"t", "id", "w", "d", "s", "auto"}:
+            raise ValueError(f"measurement fields must be t, id, w, d, s[, auto]: {line[:80]!r}")
+        w, d, fid, stamp = obj["w"], obj["d"], obj["id"], obj["s"]
+        if not (isinstance(w, list) and isinstance(d, list) and 2 <= len(w) == len(d) <= 3
+                and all(_number(v) for v in [*w, *d])):
             raise ValueError(f"measurement coordinates must be numbers: {line[:80]!r}")
-        return Measurement(str(obj["id"]), tuple(float(v) for v in w),
-                           tuple(float(v) for v in d), float(obj["s"]), bool(obj.get("auto")))
+        if not isinstance(fid, str) or not _number(stamp) or not math.isfinite(stamp):
+            raise ValueError(f"measurement id must be a string and s a finite number: "
+                             f"{line[:80]!r}")
+        if not isinstance(obj.get("auto", False), bool):
+            raise ValueError(f"measurement auto must be a boolean: {line[:80]!r}")
+        return Measurement(fid, tuple(float(v) for v in w), tuple(float(v) for v in d),
+                           float(stamp), obj.get("auto", False))
     if kind == "e":
-        return EnabledChange(str(obj["id"]), bool(obj["on"]))
+        if keys != {"t", "id", "on"} or not isinstance(obj["id"], str) \
+                or not isinstance(obj["on"], bool):
+            raise ValueError(f"an enable change must be t, id (string), on (boolean): "
+                             f"{line[:80]!r}")
+        return EnabledChange(obj["id"], obj["on"])
     raise ValueError(f"unknown journal record type {kind!r}")
 
 
 class Journal:
     """Append-only journal of accepted records in ``state_dir`` (see the module docstring).
 
-    :param state_dir: directory (created if missing).
+    :param state_dir: directory (created 0700 if missing).
     :param header: identifies the setup (frames, dimension); an existing journal with another
-        header is refused (:class:`JournalMismatch`).
+        header, or without a header and with records of another setup, is refused
+        (:class:`JournalMismatch`).
     :param fsync: fsync after every record.
     """
 
     def __init__(self, state_dir: str, header: dict[str, Any], fsync: bool = False) -> None:
-        self.state_dir = os.path.abspath(os.path.expanduser(state_dir))
+        self.state_dir = private_dir(state_dir)
         self.path = os.path.join(self.state_dir, JOURNAL_NAME)
         self.header = {"t": "h", "version": JOURNAL_VERSION, **header}
+        self.digest = setup_digest(self.header)
         self.fsync = fsync
         self._fd: Optional[int] = None
         self._size = 0                # bytes of whole records in the file
         self._needs_header = False    # the header is written with the first record that fits
         self._dirty = False           # a failed write could not be cut off yet
-        os.makedirs(self.state_dir, exist_ok=True)
+        self.n_skipped = 0            # lines skipped by the last load (torn, corrupt, invalid)
 
     def load(self) -> tuple[list[Record], list[str]]:
         """Read the existing journal (if any) and open it for appending.
 
-        :return: the records in order, and warnings about skipped lines.
-        :raises JournalMismatch: when the header names other frames or another dimension.
+        :return: the records in order, and warnings about skipped lines (one per line).
+        :raises JournalMismatch: when the header names other frames, another dimension or an
+            unknown version, or there is no header and no record was written for this setup.
+        :raises NotARegularFile: when the journal is a symlink, FIFO, device or directory.
         """
-        records: list[Record] = []
-        warnings: list[str] = []
-        good_end = 0
-        if os.path.exists(self.path):
-            with open(self.path, "rb") as f:
-                data = f.read()
-            offset = 0
-            lineno = 0
-            while offset < len(data):
-                end = data.find(b"\n", offset)
-                lineno += 1
-                if end < 0:
-                    warnings.append(f"{self.path}:{lineno}: torn last record "
-                                    f"({len(data) - offset} bytes without a newline) skipped")
-                    break
-                line = data[offset:end].decode("utf-8", errors="replace").strip()
-                offset = end + 1
-                good_end = offset
-                if not line:
-                    continue
-                try:
-                    obj = json.loads(line)
-                    if isinstance(obj, dict) and obj.get("t") == "h":
-                        self._check_header(obj)
-                        continue
-                    records.append(record_from_object(obj, line))
-                except JournalMismatch:
-                    raise
-                except (ValueError, KeyError, TypeError) as exc:
-                    warnings.append(f"{self.path}:{lineno}: unreadable record skipped ({exc})")
+        self.close()
+        fd = open_private(self.path, os.O_RDWR | os.O_APPEND | os.O_CREAT)
+        try:
+            data = read_fd(fd, self.path, MAX_JOURNAL_BYTES)
+            records, warnings, good_end, version = self._parse(data)
+        except BaseException:
+            os.close(fd)
+            raise
+        self._fd = fd
+        if version == 1:
+            os.close(fd)
+            self._fd = None
+            warnings.append(self._migrate(records))
+            fd = open_private(self.path, os.O_RDWR | os.O_APPEND)
+            self._fd, good_end = fd, os.fstat(fd).st_size
         error = self._open(truncate_to=good_end)
         if error:
             warnings.append(error)
         return records, warnings
 
-    def _check_header(self, found: dict[str, Any]) -> None:
+    def _parse(self, data: bytes) -> tuple[list[Record], list[str], int, Optional[int]]:
+        """(records, warnings, bytes of whole lines, header version or None)."""
+        records: list[Record] = []
+        warnings: list[str] = []
+        offset = good_end = lineno = 0
+        version: Optional[int] = None
+        unsealed = 0   # records that failed their checksum
+        while offset < len(data):
+            end = data.find(b"\n", offset)
+            lineno += 1
+            if end < 0:
+                warnings.append(f"{self.path}:{lineno}: torn last record "
+                                f"({len(data) - offset} bytes without a newline) skipped")
+                break
+            raw = data[offset:end].strip()
+            offset = good_end = end + 1
+            if not raw:
+                continue
+            try:
+                if len(raw) > MAX_LINE_BYTES:
+                    raise ValueError(f"line of {len(raw)} bytes, more than {MAX_LINE_BYTES}")
+                if version is None and not records and b'"h"' in raw[:16]:
+                    first = parse_line(raw.decode("utf-8"))
+                    if isinstance(first, dict) and first.get("t") == "h":
+                        version = self._check_header(first)
+                        continue
+                if version != 1:
+                    try:
+                        raw = unseal(raw, self.digest)
+                    except ValueError:
+                        unsealed += 1
+                        raise
+                records.append(record_from_json(raw.decode("utf-8")))
+            except JournalMismatch:
+                raise
+            except (ValueError, KeyError, TypeError, RecursionError) as exc:
+                warnings.append(f"{self.path}:{lineno}: unreadable record skipped ({exc})")
+        if version is None and unsealed and not records:
+            raise JournalMismatch(
+                f"{self.path} has no header line and none of its {unsealed} record(s) was "
+                f"written for this setup ({self._setup()}): move the journal away or start "
+                f"with the parameters it was written with")
+        self.n_skipped = len(warnings)
+        return records, warnings, good_end, version
+
+    def _setup(self) -> str:
+        return ", ".join(f"{k}={v!r}" for k, v in self.header.items() if k not in ("t", "version"))
+
+    def _check_header(self, found: Any) -> int:
+        if not isinstance(found, dict) or found.get("version") not in READABLE_VERSIONS:
+            got = found.get("version") if isinstance(found, dict) else found
+            raise JournalMismatch(
+                f"{self.path} has journal version {got!r}; this node reads versions "
+                f"{', '.join(map(str, READABLE_VERSIONS))}: move the journal away")
         for key, want in self.header.items():
             if key != "version" and found.get(key) != want:
                 raise JournalMismatch(
                     f"{self.path} was written with {key}={found.get(key)!r}, but the node runs "
                     f"with {key}={want!r}: move the journal away or start with the same "
                     f"parameters")
+        return int(found["version"])
+
+    def _migrate(self, records: list[Record]) -> str:
+        """Rewrite a version 1 journal as this version (atomically; the old one kept)."""
+        backup = f"{self.path}.v1.{_stamp()}.bak"
+        os.link(self.path, backup)
+        header = json.dumps(self.header, separators=(",", ":")).encode("utf-8") + b"\n"
+        write_atomic(self.path, (header + self._lines(records)).decode("utf-8"))
+        return (f"{self.path}: journal version 1 rewritten as version {JOURNAL_VERSION} "
+                f"({len(records)} records; the old file is kept as {backup})")
+
+    def _lines(self, records: Iterable[Record]) -> bytes:
+        return b"".join(seal(record_to_json(r).encode("utf-8"), self.digest) + b"\n"
+                        for r in records)
 
     def _open(self, truncate_to: int) -> str:
         """Open for appending after ``truncate_to`` bytes; returns a warning when a new
         journal's header cannot be written yet (it is retried with the first record)."""
-        self.close()
-        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        if self._fd is None:
+            self._fd = open_private(self.path, os.O_RDWR | os.O_APPEND | os.O_CREAT)
+        fd = self._fd
         if os.fstat(fd).st_size != truncate_to:
             os.ftruncate(fd, truncate_to)
-        self._fd, self._size, self._dirty = fd, truncate_to, False
+        self._size, self._dirty = truncate_to, False
         self._needs_header = truncate_to == 0
         if self._needs_header:
             try:
@@ -220,11 +378,11 @@ class Journal:
         :raises OSError: when it cannot be written in full; nothing of it stays in the journal
             and the caller must not count the record.
         """
-        self._write(record_to_json(record).encode("utf-8") + b"\n")
+        self._write(self._lines((record,)))
 
     def append_many(self, records: Iterable[Record]) -> None:
         """Append several records (one write): all of them or, on ``OSError``, none."""
-        self._write("".join(record_to_json(r) + "\n" for r in records).encode("utf-8"))
+        self._write(self._lines(records))
 
     def archive(self) -> Optional[str]:
         """Move the journal (and snapshot) aside as ``*.<UTC time>.bak`` and start a new one.
@@ -232,7 +390,7 @@ class Journal:
         :return: the archived journal's path, or ``None`` when there was none.
         """
         self.close()
-        suffix = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f".{time.time_ns() % 10**9:09d}"
+        suffix = _stamp()
         archived = None
         for name in (JOURNAL_NAME, SNAPSHOT_NAME):
             path = os.path.join(self.state_dir, name)
@@ -252,3 +410,8 @@ class Journal:
 
     def __del__(self) -> None:  # a journal dropped without close() must not leak its descriptor
         self.close()
+
+
+def _stamp() -> str:
+    """A UTC time stamp unique enough for backup names."""
+    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f".{time.time_ns() % 10**9:09d}"

@@ -1,8 +1,10 @@
 """The calibration snapshot of ``registration_node`` in ``state_dir``: its JSON and the atomic
 file operations (no rclpy).
 
-``calibration.json``: the latest model, written atomically (temporary file, fsync, rename,
-fsync of the directory): a reader sees the old or the new file, never a mix. The node never
+``calibration.json``: the latest model, written atomically (a temporary file with a unique
+name, fsync, rename, fsync of the directory) by one writer at a time (a lock per path): a reader
+sees the old or the new file, never a mix, and concurrent writers (``~/save`` and the recompute
+thread) never share or remove each other's temporary file. The node never
 loads it (the journal, :mod:`rbc_registration.pipeline.journal`, is the source of truth);
 :func:`tidy_state_dir` removes temporary files of an interrupted write and moves an unreadable
 snapshot aside before the node starts.
@@ -11,11 +13,14 @@ snapshot aside before the node starts.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import os
+import threading
 import time
 from typing import TYPE_CHECKING, Any, BinaryIO, Callable
 
+from .files import check_regular, open_private, read_regular
 from .jsonable import json_clean, registration_json
 
 if TYPE_CHECKING:
@@ -23,6 +28,23 @@ if TYPE_CHECKING:
 
 SNAPSHOT_NAME = "calibration.json"
 SNAPSHOT_FORMAT = "rbc_registration calibration 1"
+#: A snapshot larger than this is not read (a device or a runaway file is not parsed).
+MAX_SNAPSHOT_BYTES = 1 << 30
+
+_WRITE_LOCKS: dict[str, threading.Lock] = {}
+_WRITE_LOCKS_GUARD = threading.Lock()
+_TMP_COUNTER = itertools.count()
+
+
+def _write_lock(path: str) -> threading.Lock:
+    """The lock serialising writes of ``path`` in this process (one writer at a time)."""
+    with _WRITE_LOCKS_GUARD:
+        return _WRITE_LOCKS.setdefault(path, threading.Lock())
+
+
+def _exclusive(path: str, flags: int) -> int:
+    """``open(opener=...)``: a new private regular file (never an existing one or a link)."""
+    return open_private(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL)
 
 
 def fsync_dir(path: str) -> None:
@@ -48,21 +70,25 @@ def write_atomic(path: str, text: str,
     :raises OSError: when it cannot be written; ``path`` keeps its old content and the
         temporary file is removed.
     """
-    directory = os.path.dirname(os.path.abspath(path))
+    path = os.path.abspath(path)
+    directory = os.path.dirname(path)
     os.makedirs(directory, exist_ok=True)
-    tmp = f"{path}.tmp.{os.getpid()}"
     data = text.encode("utf-8")
-    try:
-        with open(tmp, "wb") as f:
-            write(f, data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    fsync_dir(directory)
+    with _write_lock(path):
+        # Unique per process, thread and call: a concurrent writer never touches this file.
+        tmp = (f"{path}.tmp.{os.getpid()}.{threading.get_ident()}.{next(_TMP_COUNTER)}."
+               f"{os.urandom(4).hex()}")
+        try:
+            with open(tmp, "wb", opener=_exclusive) as f:
+                write(f, data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+        fsync_dir(directory)
 
 
 def read_snapshot(path: str) -> dict[str, Any]:
@@ -71,8 +97,7 @@ def read_snapshot(path: str) -> dict[str, Any]:
     :raises ValueError: when it is not a complete snapshot of this format (e.g. cut short).
     :raises OSError: when it cannot be read.
     """
-    with open(path, "rb") as f:
-        raw = f.read()
+    raw = read_regular(path, MAX_SNAPSHOT_BYTES)
     try:
         data = json.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -99,8 +124,9 @@ def tidy_state_dir(state_dir: str) -> list[str]:
             warnings.append(f"removed {name}: a snapshot write was interrupted (ignored; the "
                             f"model is rebuilt from the journal)")
     path = os.path.join(directory, SNAPSHOT_NAME)
-    if os.path.exists(path):
+    if os.path.lexists(path):
         try:
+            check_regular(path)
             read_snapshot(path)
         except (ValueError, OSError) as exc:
             stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())

@@ -149,3 +149,67 @@ class RecomputeWorker:
             with self._cond:
                 self._done = max(self._done, ticket)
                 self._cond.notify_all()
+
+
+class LatestWriter:
+    """A thread writing the latest submitted item with ``write(item)``: submissions while a
+    write runs are coalesced into one write of the newest. Used for the calibration snapshot,
+    so its serialisation and fsyncs never run on the node's executor or recompute thread.
+
+    :param write: writes one item (e.g. serialises a model state and writes it atomically);
+        returns what was written (e.g. the path).
+    :param on_error: called with an exception ``write`` raised (the thread goes on).
+    """
+
+    def __init__(self, write: Callable[[Any], str],
+                 on_error: Callable[[BaseException], None]) -> None:
+        self._write = write
+        self._on_error = on_error
+        self._cond = threading.Condition()
+        self._item: Any = None
+        self._pending = False
+        self._busy = False
+        self._stop = False
+        self.n_written = 0
+        self.last_written = ""   # what the last successful write returned
+        self.last_error = ""     # the last failed write's error; "" after a success
+        self._thread = threading.Thread(target=self._run, name="rbc_snapshot", daemon=True)
+        self._thread.start()
+
+    def submit(self, item: Any) -> None:
+        """Write ``item`` soon (replacing an item not yet being written)."""
+        with self._cond:
+            self._item, self._pending = item, True
+            self._cond.notify_all()
+
+    def wait_idle(self, timeout: float) -> bool:
+        """Wait until nothing is pending or being written; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not (self._pending or self._busy), timeout)
+
+    def stop(self) -> None:
+        """Write what is pending, then stop and join the thread."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        if self._thread is not threading.current_thread():
+            self._thread.join()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._pending or self._stop)
+                if not self._pending:
+                    return
+                item, self._item, self._pending, self._busy = self._item, None, False, True
+            try:
+                written = self._write(item)
+                self.n_written, self.last_written, self.last_error = (
+                    self.n_written + 1, written, "")
+            except Exception as exc:  # noqa: BLE001 - boundary: keep the thread serving
+                self.last_error = f"{type(exc).__name__}: {exc}" if not isinstance(
+                    exc, OSError) else str(exc)
+                self._on_error(exc)
+            with self._cond:
+                self._busy = False
+                self._cond.notify_all()

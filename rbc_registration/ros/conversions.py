@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from rbc_registration_interfaces.msg import TargetCorrection
 
 from ..core.records import quote
+from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.ingest import PairArgs
 from . import fast_msgs
 
@@ -64,7 +65,7 @@ def targets_to_array(targets: Sequence[PointStamped], working_frame: str,
     """Targets -> (points (K, dimension) for the model, z (K,) to pass through in 2D).
 
     :raises ValueError: naming the first target whose frame is not ``working_frame`` (an empty
-        frame_id means the working frame).
+        frame_id means the working frame), or in 2D whose z is NaN, inf or beyond ±1e150.
     """
     for k, target in enumerate(targets):
         frame = target.header.frame_id
@@ -72,6 +73,14 @@ def targets_to_array(targets: Sequence[PointStamped], working_frame: str,
             raise ValueError(f"target {k} has frame_id {quote(frame)}, expected the working frame "
                              f"{working_frame!r} (or empty)")
     xyz = np.array([point_to_array(t.point) for t in targets], dtype=np.float64).reshape(-1, 3)
+    if dimension == 2:
+        # z is not seen by the 2D model but passed through to the answer: check it here (x, y
+        # are checked by the model like every coordinate in 3D).
+        bad = np.flatnonzero(~(np.abs(xyz[:, 2]) <= MAX_ABS_COORDINATE))
+        if bad.size:
+            k = int(bad[0])
+            raise ValueError(f"target {k} has z = {xyz[k, 2]!r}: coordinates must be finite and "
+                             f"within ±{MAX_ABS_COORDINATE:g} (dimension 2 passes z through)")
     return xyz[:, :dimension], xyz[:, 2].copy()
 
 

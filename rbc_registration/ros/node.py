@@ -33,12 +33,13 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, SetF
 
 from ..core.accumulator import FiducialAccumulator
 from ..core.pairing import DESTINATION, WORKING, StampPairer
+from ..pipeline.files import StateDirLock
 from ..pipeline.ingest import Ingest
 from ..pipeline.journal import Journal
 from ..pipeline.settings import SPECS
 from ..pipeline.snapshot import snapshot_json, snapshot_path, tidy_state_dir, write_atomic
 from ..pipeline.state import EMPTY_STATE, ModelState, build_state
-from ..pipeline.worker import RecomputeWorker
+from ..pipeline.worker import LatestWriter, RecomputeWorker
 from . import conversions as conv
 from . import params, samples, saved
 from .guards import guard_input, guard_service
@@ -68,8 +69,12 @@ class RegistrationNode(ServicesMixin, Node):
     :param clock: monotonic seconds for the recompute debounce (default
         :func:`time.monotonic`).
     :param kwargs: passed to ``rclpy.node.Node`` (``context``, ``parameter_overrides``, ...).
-    :raises ValueError: when a parameter's starting value is invalid or the journal in
-        ``state_dir`` was written with other frames / another dimension.
+    :raises ValueError: when a parameter's starting value is invalid, another node holds
+        ``state_dir`` (:class:`~rbc_registration.pipeline.files.StateDirBusy`), the journal is
+        not a regular file or was written with other frames / another dimension.
+    :raises OSError: when ``state_dir`` cannot be created or its journal opened.
+
+    A node that fails half way is destroyed again (lock released, threads stopped).
     """
 
     def __init__(self, node_name: str = "registration_node", *,
@@ -77,6 +82,14 @@ class RegistrationNode(ServicesMixin, Node):
                  write_snapshot: Callable[[str, str], None] = write_atomic,
                  clock: Callable[[], float] = time.monotonic, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
+        try:
+            self._start(build, write_snapshot, clock)
+        except BaseException:
+            self.destroy_node()
+            raise
+
+    def _start(self, build: Callable[..., ModelState], write_snapshot: Callable[[str, str], None],
+               clock: Callable[[], float]) -> None:
         self._settings = params.declare(self)
         s = self._settings
         # A calibration_file is read (and refused, naming why) before anything else starts.
@@ -95,6 +108,8 @@ class RegistrationNode(ServicesMixin, Node):
                                           s.merge_radius, s.outlier_distance, s.max_stamp_age)
         journal = None
         if s.state_dir:
+            # One writer per state_dir, for the node's life: taken before anything is touched.
+            self._state_lock = StateDirLock(s.state_dir)
             for warning in tidy_state_dir(s.state_dir):
                 self.get_logger().warning(warning)
             journal = Journal(s.state_dir, {"working_frame": s.working_frame,
@@ -148,6 +163,7 @@ class RegistrationNode(ServicesMixin, Node):
                 self._tf_transforms = dict.fromkeys(("corrected", "uncorrected"), transform)
                 self._publish_tf()
             self.get_logger().info(self._loaded.describe())
+        self._snapshots = LatestWriter(self._save, self._on_snapshot_error)
         self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
                                        self._on_worker_error, clock)
         if restored:
@@ -218,10 +234,11 @@ class RegistrationNode(ServicesMixin, Node):
             self._pub_markers.publish(markers)
         self._publish_status()
         if s.state_dir:
-            try:
-                self._save(state)
-            except OSError as exc:  # e.g. disk full: the journal still holds every measurement
-                self.get_logger().error(f"calibration snapshot not written: {exc}")
+            self._snapshots.submit(state)   # serialised and written in its own thread
+
+    def _on_snapshot_error(self, exc: BaseException) -> None:
+        # e.g. disk full: the journal still holds every measurement
+        self.get_logger().error(f"calibration snapshot not written: {exc}")
 
     def _publish_tf(self) -> None:
         """/tf_static: the registration ``tf_broadcast`` chooses of the latest model (call with
@@ -296,12 +313,21 @@ class RegistrationNode(ServicesMixin, Node):
         self._worker.notify()
 
     def destroy_node(self) -> None:
-        """Stop the recompute thread, close the journal, then destroy the node (also one whose
-        constructor failed half way: rclpy's context shutdown destroys it again)."""
-        for part, stop in (("_worker", "stop"), ("_ingest", "close")):
-            if hasattr(self, part):
-                getattr(getattr(self, part), stop)()
+        """Stop the recompute and snapshot threads, close the journal, release ``state_dir``,
+        then destroy the node (also of a node whose start failed half way)."""
+        for name, stop in (("_worker", "stop"), ("_snapshots", "stop"), ("_ingest", "close"),
+                           ("_state_lock", "release")):
+            part = self.__dict__.pop(name, None)
+            if part is not None:
+                getattr(part, stop)()
         super().destroy_node()
+
+
+def start_failure(exc: BaseException) -> str:
+    """The one FATAL line for a start-up failure (line breaks of the reason escaped)."""
+    text = str(exc) if not isinstance(exc, OSError) or exc.filename is None else (
+        f"{exc.filename}: {exc.strerror or exc}")
+    return "cannot start: " + text.replace("\r", "\\r").replace("\n", "\\n")
 
 
 def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
@@ -309,8 +335,9 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
 
     :param node_options: passed to :class:`RegistrationNode` (e.g. ``write_snapshot``).
 
-    Exits with status 1 when a parameter is invalid or ``state_dir`` holds a journal of
-    another setup (the reason is logged).
+    Exits with status 1 and one FATAL line ``cannot start: <path and reason>`` when a
+    parameter is invalid, ``state_dir`` is in use by another node, is not a usable directory,
+    or holds a journal that is not a regular file or belongs to another setup.
     """
     rclpy.init(args=args)
     node: Optional[RegistrationNode] = None
@@ -324,8 +351,8 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ValueError, ParameterException) as exc:
-        get_logger("registration_node").fatal(f"cannot start: {exc}")
+    except (ValueError, ParameterException, OSError) as exc:
+        get_logger("registration_node").fatal(start_failure(exc))
         code = 1
     finally:
         if node is not None:

@@ -14,18 +14,37 @@ from std_srvs.srv import Trigger
 from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, SetFiducialEnabled,
                                              TakeSample)
 
+import re
+
 from ..pipeline.settings import corrections_applied
+from ..pipeline.snapshot import snapshot_path
 from ..pipeline.state import EMPTY_STATE
 from . import conversions as conv
 from . import samples, saved
 from .markers import markers_msg
 
-RECOMPUTE_TIMEOUT_S = 60.0
+#: ``~/recompute`` answers at once with this text; the rebuild covering the request is done when
+#: ``~/status`` ``last_recompute`` is at or after the time it names (see
+#: :func:`rebuild_requested_ns`).
+REBUILD_REQUESTED = "rebuild requested at {sec}.{nsec:09d} s (node clock)"
+_REQUESTED = re.compile(r"rebuild requested at (\d+)\.(\d{9}) s")
+
+
+def rebuild_requested_ns(message: str) -> int:
+    """The node-clock time [ns] named in a ``~/recompute`` answer.
+
+    :raises ValueError: when ``message`` is not such an answer.
+    """
+    match = _REQUESTED.search(message)
+    if match is None:
+        raise ValueError(f"not a ~/recompute answer: {message!r}")
+    return int(match.group(1)) * 10**9 + int(match.group(2))
 
 
 class ServicesMixin:
     """Service callbacks; the node provides ``_state``, ``_settings``, ``_ingest``, ``_worker``,
-    ``_pub_lock``, ``_generation``, ``_pub_markers``, ``_publish_status`` and ``_save``."""
+    ``_pub_lock``, ``_generation``, ``_pub_markers``, ``_publish_status`` and ``_snapshots``
+    (a :class:`~rbc_registration.pipeline.worker.LatestWriter` of snapshots)."""
 
     _state: Any
     _settings: Any
@@ -38,6 +57,7 @@ class ServicesMixin:
     _loaded: Any
     _samples: Any
     _publish_tf: Any
+    _snapshots: Any
 
     def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
         """Answer from one snapshot of the model: (results, "", note) or ([], reason, "")."""
@@ -104,11 +124,18 @@ class ServicesMixin:
         return response
 
     def _on_recompute(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        finished = self._worker.wait(self._worker.request_now(), RECOMPUTE_TIMEOUT_S)
+        # Answered at once: the rebuild runs in the recompute thread, and services keep
+        # answering from the current model meanwhile. Done when ~/status last_recompute is at or
+        # after the request time (the rebuild covering it starts after the request).
+        now = self.get_clock().now().nanoseconds
+        self._worker.request_now()
         state = self._state
-        response.success = finished and state.model is not None
-        response.message = (state.error or f"model rebuilt from {len(state.fiducials.ids)} "
-                            f"fiducials") if finished else "recompute timed out"
+        current = (f"{len(state.fiducials.ids)} fiducials" if state.model is not None
+                   else f"no model ({state.error})")
+        response.success = True
+        response.message = (REBUILD_REQUESTED.format(sec=now // 10**9, nsec=now % 10**9)
+                            + f"; done when ~/status last_recompute is at or after that; until "
+                              f"then answers come from the current model: {current}")
         return response
 
     def _on_save(self, request: Trigger.Request, response: Trigger.Response) -> Any:
@@ -116,17 +143,21 @@ class ServicesMixin:
             response.success, response.message = False, "state_dir is not set: nothing to save to"
             return response
         state = self._state
+        snapshot = snapshot_path(self._settings.state_dir)
+        previous = self._snapshots.last_error
+        self._snapshots.submit(state)   # serialised and written in the snapshot thread
+        note = f"snapshot queued as {snapshot}" + (
+            f" (the previous snapshot write failed: {previous})" if previous else "")
         try:
-            snapshot = self._save(state)
             path, command = saved.save(state, self._settings)
         except ValueError as exc:  # no model: the snapshot is written, no calibration
-            response.success, response.message = False, f"{exc}; snapshot saved as {snapshot}"
+            response.success, response.message = False, f"{exc}; {note}"
             return response
         except OSError as exc:
-            response.success, response.message = False, f"save failed: {exc}"
+            response.success, response.message = False, f"save failed: {exc}; {note}"
             return response
-        response.success = True
-        response.message = f"saved {path} (and {snapshot}); {command}"
+        response.success = not previous
+        response.message = f"saved {path} ({note}); {command}"
         return response
 
     def _on_take_sample(self, request: TakeSample.Request,

@@ -49,10 +49,14 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
     msg.last_recompute = nanoseconds_to_stamp(state.stamp_ns)
     msg.n_journal_failures = counters.n_journal_failures
     msg.message = state.error
+    if counters.n_replay_skipped:
+        msg.message = "; ".join(filter(None, (
+            f"journal replay skipped {counters.n_replay_skipped} corrupt or invalid record(s) "
+            f"(see the log)", state.error)))
     if counters.journal_error:
         msg.message = "; ".join(filter(None, (
             f"journal write failed, {counters.n_journal_failures} record(s) not accepted: "
-            f"{counters.journal_error}", state.error)))
+            f"{counters.journal_error}", msg.message)))
     msg.model_valid = model is not None
     if model is None:
         msg.sigma = msg.rho = msg.fre_rms_uncorrected = msg.fre_rms_corrected = float("nan")

@@ -115,13 +115,29 @@ def test_torn_last_line_is_skipped_with_a_warning_and_cut_off(tmp_path):
 
 
 def test_corrupt_middle_line_is_skipped(tmp_path):
+    j = Journal(str(tmp_path), HEADER)
+    j.load()
+    j.append(records()[0])
+    os.write(j._fd, b"garbage{\n")
+    j.append(records()[1])
+    j.close()
+    loaded, warnings = Journal(str(tmp_path), HEADER).load()
+    assert loaded == records()[:2]
+    assert len(warnings) == 1 and ":3: unreadable record skipped" in warnings[0]
+
+
+def test_a_version_1_journal_is_read_and_rewritten_as_version_2(tmp_path):
     path = tmp_path / JOURNAL_NAME
     lines = [json.dumps({"t": "h", "version": 1, **HEADER}), record_to_json(records()[0]),
              "garbage{", record_to_json(records()[1])]
     path.write_text("\n".join(lines) + "\n")
     loaded, warnings = Journal(str(tmp_path), HEADER).load()
     assert loaded == records()[:2]
-    assert len(warnings) == 1 and ":3: unreadable record skipped" in warnings[0]
+    assert ":3: unreadable record skipped" in warnings[0]
+    assert "journal version 1 rewritten as version 2" in warnings[1]
+    assert json.loads(path.read_text().splitlines()[0])["version"] == 2
+    assert Journal(str(tmp_path), HEADER).load() == (records()[:2], [])
+    assert any(".v1." in name for name in os.listdir(tmp_path))
 
 
 def test_a_journal_of_another_setup_is_refused(tmp_path):

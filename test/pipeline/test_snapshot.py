@@ -91,3 +91,47 @@ def test_sigkill_inside_a_write_leaves_the_old_snapshot_whole(tmp_path):
     warnings = tidy_state_dir(str(tmp_path))
     assert len(warnings) == 1 and "interrupted" in warnings[0] and not os.path.exists(tmp)
     assert read_snapshot(path)["n_measurements"] == 3
+
+
+def test_parallel_writers_and_a_reader_never_fail_or_see_a_partial_file(tmp_path):
+    """issue 11, severe 4: ``~/save`` and the recompute thread wrote the same temporary name
+    (saves failed with ENOENT, readers saw invalid JSON). Four writers, a reader parsing
+    continuously: 0 failures, 0 invalid reads, the final file is one writer's whole content."""
+    import threading
+
+    path = str(tmp_path / SNAPSHOT_NAME)
+    write_atomic(path, GOOD)
+    texts = {w: [json.dumps({"format": SNAPSHOT_FORMAT, "writer": w, "k": k,
+                             "pad": "x" * (2000 + 997 * k % 5000)}) for k in range(40)]
+             for w in range(4)}
+    failures, invalid, reads = [], [], [0]
+    done = threading.Event()
+
+    def writer(w):
+        for text in texts[w]:
+            try:
+                write_atomic(path, text)
+            except OSError as exc:
+                failures.append(exc)
+
+    def reader():
+        while not done.is_set():
+            try:
+                read_snapshot(path)
+                reads[0] += 1
+            except (ValueError, OSError) as exc:
+                invalid.append(exc)
+
+    threads = [threading.Thread(target=writer, args=(w,)) for w in texts]
+    watcher = threading.Thread(target=reader)
+    watcher.start()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    done.set()
+    watcher.join()
+    assert failures == [] and invalid == [] and reads[0] > 0
+    final = open(path).read()
+    assert final in {text for w in texts for text in texts[w]}
+    assert sorted(os.listdir(tmp_path)) == [SNAPSHOT_NAME]

@@ -24,6 +24,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from std_srvs.srv import Trigger  # noqa: E402
 
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
+from rbc_registration.ros.services import rebuild_requested_ns  # noqa: E402
 from rbc_registration_interfaces.srv import CorrectTarget  # noqa: E402
 
 from ros_helpers import answer_key, pair_msg, target_msg  # noqa: E402
@@ -68,6 +69,11 @@ def main() -> int:
         assert statuses and statuses[-1].n_measurements == n, "node did not accept every pair"
         recompute = call(node, node.create_client(Trigger, f"{ns}/recompute"), Trigger.Request())
         assert recompute.success, recompute.message
+        requested = rebuild_requested_ns(recompute.message)   # answered at once: wait for it
+        while time.monotonic() < end and not (
+                statuses[-1].last_recompute.sec * 10**9 + statuses[-1].last_recompute.nanosec
+                >= requested):
+            rclpy.spin_once(node, timeout_sec=0.05)
         client = node.create_client(CorrectTarget, f"{ns}/correct_target")
         answers = [answer_key(call(node, client, CorrectTarget.Request(target=target_msg(t))))
                    for t in cell["targets"]]

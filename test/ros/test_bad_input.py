@@ -24,6 +24,7 @@ from rclpy.qos import qos_profile_rosout_default  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from rbc_registration.ros.node import RegistrationNode  # noqa: E402
+from rbc_registration.ros.services import rebuild_requested_ns  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair  # noqa: E402
 from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets,  # noqa: E402
                                              SetFiducialEnabled)
@@ -128,7 +129,10 @@ class TestNodeBadInput(RosTestBase):
 
     @classmethod
     def recompute(cls):
-        assert cls.srv(Trigger, "recompute", Trigger.Request()).success
+        response = cls.srv(Trigger, "recompute", Trigger.Request())
+        assert response.success, response.message
+        requested = rebuild_requested_ns(response.message)
+        wait_for(lambda: cls.node.state.stamp_ns >= requested, what="the requested rebuild")
         return cls.node.state
 
     def setup_method(self):

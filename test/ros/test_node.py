@@ -21,6 +21,7 @@ from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 from rbc_registration.ros.conversions import transform_to_matrix  # noqa: E402
 from rbc_registration.ros.node import RegistrationNode  # noqa: E402
+from rbc_registration.ros.services import rebuild_requested_ns  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
 from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets,  # noqa: E402
                                              SetFiducialEnabled)
@@ -82,8 +83,11 @@ class NodeTestBase(RosTestBase):
                              request if request is not None else srv_type.Request())
 
     def recompute(self, node):
+        """~/recompute answers at once; wait for the rebuild covering the request."""
         response = self.srv(node, Trigger, "recompute")
         assert response.success, response.message
+        requested = rebuild_requested_ns(response.message)
+        wait_for(lambda: node.state.stamp_ns >= requested, what="the requested rebuild")
         return node.state
 
     def correct(self, node, xyz, frame="tracker"):
@@ -193,7 +197,7 @@ class TestLiveRegistration(NodeTestBase):
         r = self.correct(node, [0.1, 0.2, 0.3])
         assert not r.success and r.message.startswith("no model yet")
         self.stream(node, range(5))
-        assert not self.srv(node, Trigger, "recompute").success
+        assert self.recompute(node).model is None
         r = self.correct(node, [0.1, 0.2, 0.3])
         assert not r.success and "5 enabled fiducials, need min_fiducials=10" in r.message
 
@@ -379,6 +383,24 @@ class TestTwoDimensions(NodeTestBase):
         m = transform_to_matrix(msg)
         np.testing.assert_allclose(m[:2, :2], state.model.corrected.rotation, atol=1e-12)
         np.testing.assert_allclose(m[2, :], [0, 0, 1, 0], atol=1e-12)
+
+    @pytest.mark.parametrize("z", [float("nan"), float("inf"), -float("inf"), 1e300])
+    def test_non_finite_z_of_a_2d_target_is_refused(self, z):
+        """issue 11, severe 1: in 2D z passes through, so a NaN/inf z (a tracker that lost the
+        beam) must get success=false naming the target and the coordinate, not a NaN answer."""
+        node = self.make_node(dimension=2, min_fiducials=4)
+        layer = [k for k in range(self.n) if self.cell["fid"][k] % 3 == 0]
+        self.stream(node, layer)
+        assert self.recompute(node).model is not None
+        good = self.cell["targets"][2]
+        r = self.correct(node, [good[0], good[1], z])
+        assert not r.success
+        assert "target 0" in r.message and "z" in r.message, r.message
+        batch = self.srv(node, CorrectTargets, "correct_targets", CorrectTargets.Request(
+            targets=[target_msg(good), target_msg([good[0], good[1], z])]))
+        assert not batch.success and not batch.results
+        assert "target 1" in batch.message and "z" in batch.message, batch.message
+        assert self.correct(node, good).success
 
 
 class TestStartAndTf(NodeTestBase):

@@ -22,6 +22,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from std_srvs.srv import Trigger  # noqa: E402
 
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
+from rbc_registration.ros.services import rebuild_requested_ns  # noqa: E402
 from rbc_registration_interfaces.srv import CorrectTarget  # noqa: E402
 
 from ros_helpers import (RosTestBase, answer_key, expected_state, make_cell,  # noqa: E402
@@ -47,9 +48,26 @@ def status_sub(ros, name):
     return statuses, sub
 
 
+def recompute_and_wait(ros, name, timeout=60.0):
+    """``~/recompute`` (answered at once), then wait until ``~/status`` shows the rebuild."""
+    response = ros.call(Trigger, f"/{name}/recompute", Trigger.Request(), 30)
+    assert response.success, response.message
+    requested = rebuild_requested_ns(response.message)
+    statuses, sub = status_sub(ros, name)
+    try:
+        wait_for(lambda: statuses and stamp_ns(statuses[-1].last_recompute) >= requested,
+                 timeout, what="the requested rebuild in ~/status")
+    finally:
+        ros.client.destroy_subscription(sub)
+
+
+def stamp_ns(stamp):
+    return stamp.sec * 10**9 + stamp.nanosec
+
+
 def process_answers(ros, name, cell):
     """Recompute, then the answer keys of ``~/correct_target`` for every target of ``cell``."""
-    assert ros.call(Trigger, f"/{name}/recompute", Trigger.Request(), 30).success
+    recompute_and_wait(ros, name)
     return [answer_key(ros.call(CorrectTarget, f"/{name}/correct_target",
                                 CorrectTarget.Request(target=target_msg(t)), 30))
             for t in cell["targets"]]
