@@ -12,6 +12,8 @@ DIMENSIONS = (2, 3)
 #: How the rigid-body condition is restored (eq. 4): the paper's Gauss-Newton steps or the exact
 #: minimum-norm solution.
 RESTORATIONS = ("iterative", "closed-form")
+#: Most iterative restoration steps accepted (node parameter and CLI ``--steps``).
+MAX_RESTORATION_STEPS = 20
 #: How fiducial corrections are interpolated at a target (eq. 5).
 INTERPOLATIONS = ("paper", "kriging")
 #: Outcomes of the rho rule (paper section 6), see :func:`rbc_registration.core.noise.assess`.

@@ -18,7 +18,7 @@ from typing import NamedTuple, Optional, Sequence, Union
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import INTERPOLATIONS, check_rho_thresholds
+from .constants import INTERPOLATIONS, MAX_RESTORATION_STEPS, check_rho_thresholds
 from .interpolation import PaperInterpolator
 from .kriging import KrigingHyperparameters, KrigingInterpolator
 from .noise import RepeatStats, assess, repeat_stats, sigma_from_stats
@@ -63,6 +63,8 @@ class ModelConfig:
             raise ValueError(f"restoration must be one of {METHODS}, got {self.restoration!r}")
         if not isinstance(self.steps, int) or isinstance(self.steps, bool) or self.steps < 1:
             raise ValueError(f"steps must be a positive integer, got {self.steps!r}")
+        if self.steps > MAX_RESTORATION_STEPS:   # the node's restoration_steps range too
+            raise ValueError(f"steps must be in 1..{MAX_RESTORATION_STEPS}, got {self.steps!r}")
         if self.interpolation not in INTERPOLATIONS:
             raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, "
                              f"got {self.interpolation!r}")

@@ -12,7 +12,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping, NamedTuple, Optional
 
-from ..core.constants import INTERPOLATIONS, RESTORATIONS, rho_thresholds_error
+from ..core.constants import (INTERPOLATIONS, MAX_RESTORATION_STEPS, RESTORATIONS,
+                              rho_thresholds_error)
 
 
 class Spec(NamedTuple):
@@ -48,7 +49,7 @@ SPECS: dict[str, Spec] = {
     "restoration": Spec("iterative", "How the rigid-body condition is restored: 'iterative' "
                         "(the paper's steps) or 'closed-form'.", choices=RESTORATIONS),
     "restoration_steps": Spec(2, "Steps of the iterative restoration (the paper uses 2).",
-                              low=1, high=20),
+                              low=1, high=MAX_RESTORATION_STEPS),
     "interpolation": Spec("paper", "Interpolation of the fiducial corrections at a target "
                           "(paper eq. 5): 'paper' or 'kriging'.", choices=INTERPOLATIONS),
     "sigma": Spec(0.0, "Known noise sigma [m] of one working-frame measurement, in the sense of "

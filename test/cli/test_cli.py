@@ -84,6 +84,8 @@ def test_register_loo_closed_form_and_subsets(ra_files):
     (["register", "{good}", "--sigma", "-1"], "sigma must be"),
     (["register", "{good}", "--corrected-fit", "nope"], "unknown fiducial id"),
     (["register", "{few}"], "at least 4"),
+    (["register", "{good}", "--steps", "1000000"], "must be in 1..20"),   # issue 11: bounds
+    (["register", "{good}", "--steps", "0"], "steps must be a positive integer"),
 ])
 def test_bad_input_is_one_clear_line(tmp_path, ra_files, args, message):
     (tmp_path / "bad.csv").write_text("id,wx,wy,wz,dx,dy,dz\na,1,2,x,1,2,3\n")
