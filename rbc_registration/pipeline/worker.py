@@ -17,6 +17,15 @@ from typing import Any, Callable, Optional
 MAX_DELAY_FACTOR = 10.0
 
 
+def _stop_and_join(worker: Any) -> None:
+    """Set ``worker._stop`` under its condition, wake it, join its thread (unless from it)."""
+    with worker._cond:
+        worker._stop = True
+        worker._cond.notify_all()
+    if worker._thread is not threading.current_thread():
+        worker._thread.join()
+
+
 class Debounce:
     """When a rebuild is due, from the times of the changes (seconds of one monotonic clock).
 
@@ -124,11 +133,7 @@ class RecomputeWorker:
 
     def stop(self) -> None:
         """Stop and join the thread (a running rebuild finishes first)."""
-        with self._cond:
-            self._stop = True
-            self._cond.notify_all()
-        if self._thread is not threading.current_thread():
-            self._thread.join()
+        _stop_and_join(self)
 
     def _run(self) -> None:
         while True:
@@ -189,11 +194,7 @@ class LatestWriter:
 
     def stop(self) -> None:
         """Write what is pending, then stop and join the thread."""
-        with self._cond:
-            self._stop = True
-            self._cond.notify_all()
-        if self._thread is not threading.current_thread():
-            self._thread.join()
+        _stop_and_join(self)
 
     def _run(self) -> None:
         while True:
