@@ -1,0 +1,307 @@
+"""Plan the measurements: which fiducial to measure next, and when there are enough.
+
+Given the current fiducials (working frame), candidate locations (e.g. holes not yet measured,
+working frame, approximate is enough) and optionally the targets that matter, :func:`plan` ranks
+the candidates by the expected reduction of the median target registration error (TRE) and
+returns a greedy sequence of ``count`` suggestions, each conditioned on the previous ones. The
+expected error (:mod:`.expected_error`) depends only on the locations and the error model's
+hyper-parameters, never on values not yet measured, so no candidate has to be measured to be
+scored. Without targets the error is taken over the work volume: a regular grid in the bounding
+box of the fiducials and candidates, kept inside their convex hull (:func:`work_volume`).
+
+Stopping rule: the plan says ``enough`` when the best candidate is expected to reduce the median
+TRE by less than ``min_gain_fraction`` of it (default 2 %) or by less than ``min_gain_length``
+(default 0: off). ``expected_after`` is the expected error as a function of the number of
+fiducials along the suggestions; :func:`cross_validate` checks the model against leave-one-out.
+
+For the CLI and the node::
+
+    model = build_model(working, destination, ModelConfig(dimension=2, interpolation="kriging"))
+    p = plan_from_model(model, candidates_working, targets_working, count=5)
+    p.sequence, p.expected_now, p.expected_after, p.enough, p.reason
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple, Optional
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .evaluation import leave_one_out
+from .expected_error import (BiasPosterior, ErrorModel, RigidFitError, expected_squared_errors,
+                             fiducial_covariance, inverse_repeats, pooled_median,
+                             target_noise)
+from .interpolation import HullTest
+from .kriging import KrigingInterpolator
+from .model import RbcModel
+from .validation import as_points, check_spread
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """How a plan is made (lengths in the unit of the points).
+
+    :ivar min_gain_fraction: ``enough`` when the best candidate gains less than this fraction of
+        the expected median TRE (default 0.02).
+    :ivar min_gain_length: ... or less than this length (default 0: off).
+    :ivar work_volume_points: size of the grid sampling the work volume when no targets are
+        given (before clipping to the convex hull).
+    :ivar candidate_repeats: measurements that will be averaged into a new fiducial.
+    :ivar target_repeats: measurements that will be averaged into each target.
+    """
+
+    min_gain_fraction: float = 0.02
+    min_gain_length: float = 0.0
+    work_volume_points: int = 400
+    candidate_repeats: int = 1
+    target_repeats: int = 1
+
+    def __post_init__(self) -> None:
+        f = self.min_gain_fraction
+        if not isinstance(f, (int, float)) or not math.isfinite(f) or not 0 <= f < 1:
+            raise ValueError(f"min_gain_fraction must be in [0, 1), got {f!r}")
+        g = self.min_gain_length
+        if not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0:
+            raise ValueError(f"min_gain_length must be a finite length >= 0, got {g!r}")
+        for name in ("work_volume_points", "candidate_repeats", "target_repeats"):
+            _check_count(getattr(self, name), name)
+
+
+class MeasurementPlan(NamedTuple):
+    """The ranked candidates and the stopping rule (lengths in the unit of the points).
+
+    :ivar sequence: candidate indices to measure, in order (greedy, each conditioned on the
+        previous ones); ``len == count``.
+    :ivar expected_now: expected median TRE over the targets with the current fiducials.
+    :ivar expected_after: expected median TRE after measuring ``sequence[:i + 1]``, per i.
+    :ivar gains: (C,) per candidate, in input order: expected reduction of the median TRE if
+        that candidate alone were measured next.
+    :ivar ranking: (C,) all candidate indices by ``gains``, best first (``ranking[0] ==
+        sequence[0]``; ties go to the lower index).
+    :ivar enough: the best candidate is expected to gain less than the threshold.
+    :ivar reason: the stopping rule's verdict in words.
+    :ivar enough_after: how many of ``sequence`` to measure before the next one is expected to gain
+        less than the threshold (0 when ``enough``); None if not within ``sequence``.
+    :ivar fiducial_count: J, the fiducials the plan starts from.
+    :ivar points: (K, d) where the error was taken: the targets, or the work-volume sample.
+    :ivar on_targets: True when ``points`` are the given targets.
+    :ivar expected_point_errors: (K,) expected RMS TRE at each point now.
+    """
+
+    sequence: tuple[int, ...]
+    expected_now: float
+    expected_after: tuple[float, ...]
+    gains: NDArray[np.float64]
+    ranking: NDArray[np.intp]
+    enough: bool
+    reason: str
+    enough_after: Optional[int]
+    fiducial_count: int
+    points: NDArray[np.float64]
+    on_targets: bool
+    expected_point_errors: NDArray[np.float64]
+
+    @property
+    def error_curve(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """Fiducial counts J, J + 1, ... and the expected median TRE at each (the sequence)."""
+        n = np.arange(len(self.expected_after) + 1, dtype=np.int64) + self.fiducial_count
+        return n, np.array((self.expected_now,) + self.expected_after)
+
+
+class CrossValidation(NamedTuple):
+    """Leave-one-out check of the error model (unit of the points).
+
+    :ivar expected: (J,) expected TRE (RMS) of each fiducial predicted from the others.
+    :ivar actual: (J,) the leave-one-out TRE of the model (corrected or uncorrected as modelled).
+    :ivar expected_median: pooled expected median of ``expected``.
+    :ivar actual_median: median of ``actual``.
+    :ivar ratio: actual_median / expected_median (a calibration for the error model).
+    """
+
+    expected: NDArray[np.float64]
+    actual: NDArray[np.float64]
+    expected_median: float
+    actual_median: float
+    ratio: float
+
+
+def _check_count(v: object, name: str) -> int:
+    if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+        raise ValueError(f"{name} must be a positive integer, got {v!r}")
+    return int(v)
+
+
+def _frozen(a: ArrayLike) -> NDArray:
+    out = np.array(a)
+    out.setflags(write=False)
+    return out
+
+
+def work_volume(points: ArrayLike, count: int = 400) -> NDArray[np.float64]:
+    """A regular grid of about ``count`` cell centres in the axis-aligned bounding box of
+    ``points`` (working frame), kept inside their convex hull; the points themselves when the
+    hull is flat or holds fewer than d + 1 grid points.
+
+    :raises ValueError: on bad points or count.
+    """
+    p = as_points(points, "work-volume points", None, 1)
+    count = _check_count(count, "work_volume_points")
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    ext = hi - lo
+    used = ext > 1e-12 * max(float(np.abs(p).max()), 1.0)
+    if used.sum() < p.shape[1]:
+        return p
+    h = (float(np.prod(ext)) / count) ** (1.0 / p.shape[1])
+    axes = []
+    for a in range(p.shape[1]):
+        n = max(1, int(round(ext[a] / h)))
+        axes.append(lo[a] + (np.arange(n) + 0.5) * ext[a] / n)
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, p.shape[1])
+    try:
+        hull = HullTest(p)
+    except ValueError:                     # too few points for qhull
+        return p
+    inside = grid[hull.simplices(grid) >= 0] if not hull.flat else grid[:0]
+    return inside if len(inside) > p.shape[1] else p
+
+
+def _verdict(gain: float, before: float, best: int, config: PlanConfig) -> tuple[bool, str]:
+    frac = gain / before if before > 0 else 0.0
+    parts = [f"{100 * config.min_gain_fraction:g} %"]
+    if config.min_gain_length > 0:
+        parts.append(f"{config.min_gain_length:g}")
+    said = (f"the best candidate (#{best}) is expected to reduce the median target error by "
+            f"{100 * frac:.2f} % ({gain:.4g}, from {before:.4g})")
+    if gain < max(config.min_gain_fraction * before, config.min_gain_length):
+        which = [p for p, low in zip(parts, (frac < config.min_gain_fraction,
+                                             gain < config.min_gain_length)) if low]
+        return True, f"enough: {said}, less than {' and '.join(which)}"
+    return False, f"measure more: {said}, at least {' and '.join(parts)}"
+
+
+def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ErrorModel,
+         targets: Optional[ArrayLike] = None, *, count: int = 1,
+         repeats: Optional[ArrayLike] = None, config: PlanConfig = PlanConfig()
+         ) -> MeasurementPlan:
+    """Rank candidate fiducials by the expected reduction of the median TRE (module docstring).
+
+    :param fiducials: (J, d) current fiducials, working frame (J >= d + 1, not degenerate).
+    :param candidates: (C, d) locations that could be measured next, working frame.
+    :param error_model: :class:`.expected_error.ErrorModel` (e.g. :func:`error_model_from`).
+    :param targets: (K, d) working-frame targets that matter; None: the work volume.
+    :param count: length of the greedy sequence (1 <= count <= C).
+    :param repeats: measurements averaged into each current fiducial, n_j (default 1 each).
+    :param config: :class:`PlanConfig`.
+    :return: :class:`MeasurementPlan`.
+    :raises ValueError: on bad shapes, NaN/inf, a dimension mismatch, degenerate fiducials or
+        a count beyond the candidates.
+    """
+    d = error_model.dimension
+    x = as_points(fiducials, "fiducials", d, d + 1)
+    check_spread(x, "fiducials")
+    c = as_points(candidates, "candidates", d, 1)
+    count = _check_count(count, "count")
+    if count > len(c):
+        raise ValueError(f"count ({count}) exceeds the number of candidates ({len(c)})")
+    inv_n = inverse_repeats(repeats, len(x))
+    on_targets = targets is not None
+    pts = as_points(targets, "targets", d, 1) if on_targets else \
+        work_volume(np.vstack([x, c]), config.work_volume_points)
+
+    inv_nc = 1.0 / config.candidate_repeats
+    rigid = RigidFitError(x, fiducial_covariance(error_model, inv_n), c,
+                          fiducial_covariance(error_model, np.array([inv_nc]))[0], pts)
+    bias = BiasPosterior(x, inv_n, c, inv_nc, pts, error_model) if error_model.corrected \
+        else None
+    const = target_noise(error_model, config.target_repeats) + \
+        (0.0 if error_model.corrected else d * error_model.signal_std ** 2)
+    cal2 = error_model.calibration ** 2
+
+    def after(active: NDArray[np.intp]) -> NDArray[np.float64]:
+        e = rigid.after_each(active) + const
+        return cal2 * (e + bias.after_each(active) if bias is not None else e)
+
+    now_sq = cal2 * (rigid.now() + const + (bias.now() if bias is not None else 0.0))
+    now = float(pooled_median(now_sq, d))
+    medians = pooled_median(after(np.arange(len(c))), d)
+    gains = now - medians
+    chosen = np.zeros(len(c), dtype=bool)
+    sequence: list[int] = []
+    expected: list[float] = []
+    enough_after: Optional[int] = None
+    before, enough, reason = now, False, ""
+    for i in range(count):
+        active = np.flatnonzero(~chosen)
+        med = medians if i == 0 else pooled_median(after(active), d)
+        k = int(np.argmin(med))                  # first of equals: the lowest index
+        best, value = int(active[k]), float(med[k])
+        low, words = _verdict(before - value, before, best, config)
+        if i == 0:
+            enough, reason = low, words
+        if low and enough_after is None:
+            enough_after = i
+        sequence.append(best)
+        expected.append(value)
+        chosen[best] = True
+        before = value
+        if i + 1 < count:
+            rigid.add(best)
+            if bias is not None:
+                bias.add(best)
+    return MeasurementPlan(tuple(sequence), now, tuple(expected), _frozen(gains),
+                           _frozen(np.argsort(-gains, kind="stable")), enough, reason,
+                           enough_after, len(x), _frozen(pts), on_targets,
+                           _frozen(np.sqrt(now_sq)))
+
+
+def _applies_correction(model: RbcModel) -> bool:
+    """Whether the model's registration applies the correction eps(T) to targets (it always
+    does before the decision of issue 9 is in the model)."""
+    return True
+
+
+def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None) -> ErrorModel:
+    """The error model of a built :class:`.model.RbcModel`.
+
+    The bias hyper-parameters are the model's kriging ones (fitted now for the ``paper``
+    interpolation); the noise is isotropic with sigma / sqrt(d) per axis (sigma: the model's,
+    else the fitted one) unless ``axis_std`` (d,) gives the standard deviation per working axis.
+    """
+    hyper = model.kriging_hyperparameters
+    if hyper is None:
+        hyper = KrigingInterpolator(model.working, model.corrections, model.sigma,
+                                    model.counts).hyper
+    d = model.config.dimension
+    std = np.full(d, hyper.noise_std / math.sqrt(d)) if axis_std is None else axis_std
+    return ErrorModel.from_axis_std(hyper.signal_std, hyper.length_scale, std,
+                                    corrected=_applies_correction(model))
+
+
+def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[ArrayLike] = None,
+                    *, count: int = 1, config: PlanConfig = PlanConfig(),
+                    error_model: Optional[ErrorModel] = None) -> MeasurementPlan:
+    """:func:`plan` from the model's fiducials, repeats and error model (or ``error_model``)."""
+    em = error_model_from(model) if error_model is None else error_model
+    return plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
+                config=config)
+
+
+def cross_validate(model: RbcModel, error_model: Optional[ErrorModel] = None) -> CrossValidation:
+    """Compare the expected leave-one-out error of each fiducial (predicted from the others)
+    with the model's actual leave-one-out TRE (:func:`.evaluation.leave_one_out`).
+
+    :return: :class:`CrossValidation`; ``ratio`` can serve as ``ErrorModel.calibration``.
+    """
+    em = error_model_from(model) if error_model is None else error_model
+    x, n = model.working, model.counts
+    keep = ~np.eye(len(x), dtype=bool)
+    expected = np.array([expected_squared_errors(x[keep[k]], x[k:k + 1], em, n[keep[k]],
+                                                 float(n[k]))[0] for k in range(len(x))])
+    loo = leave_one_out(model)
+    actual = loo.tre_c if em.corrected else loo.tre_u
+    exp_med = float(pooled_median(expected, em.dimension))
+    act_med = float(np.median(actual))
+    return CrossValidation(np.sqrt(expected), actual, exp_med, act_med, act_med / exp_med)

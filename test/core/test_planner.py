@@ -1,0 +1,331 @@
+"""The measurement planner (issue 13): expected error, ranking, stopping rule, validation."""
+
+import numpy as np
+import pytest
+import scipy.special
+from scipy.spatial.transform import Rotation
+
+from rbc_registration.core import ModelConfig, build_model
+from rbc_registration.core.expected_error import (BiasPosterior, ErrorModel,
+                                                  expected_squared_errors, pooled_median)
+from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpolator
+from rbc_registration.core.planner import (PlanConfig, cross_validate, error_model_from, plan,
+                                           plan_from_model, work_volume)
+from rbc_registration.core.registration import rigid_fit
+from rbc_registration.core.rigid_tre import rigid_tre_covariance
+from rbc_registration.core.synthetic import make_cell
+
+
+def grid(n, lo, hi, d):
+    axes = [np.linspace(lo, hi, n)] * d
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, d)
+
+
+def model(d, noise=0.02, length=1.5, corrected=True):
+    return ErrorModel.from_axis_std(1.0, length, np.full(d, noise), corrected)
+
+
+def crowded(d):
+    """Fiducials fill one corner of [0, 4]^d; the far corner is empty."""
+    corners = grid(2, 0.0, 4.0, d)
+    return np.vstack([grid(3, 0.0, 2.0, d), corners[1:-1]])
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_prefers_a_big_empty_region_to_a_spot_next_to_fiducials(d):
+    x = crowded(d)
+    near, empty, corner = np.full(d, 1.05), np.full(d, 3.0), np.full(d, 4.0)
+    for targets in (None, grid(5, 0.0, 4.0, d)):      # the work volume is the whole [0, 4]^d
+        p = plan(x, [near, empty, corner], model(d), targets)
+        assert p.sequence == (1,) and list(p.ranking) == [1, 2, 0]
+        assert p.gains[1] > 5 * p.gains[0] > 0
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_a_candidate_on_an_existing_fiducial_gains_about_nothing(d):
+    x = crowded(d)
+    p = plan(x, [x[4], np.full(d, 3.0)], model(d, noise=0.01), grid(5, 0.0, 4.0, d))
+    assert p.gains[1] > 0.05 * p.expected_now
+    assert abs(p.gains[0]) < 1e-3 * p.expected_now
+
+
+def rigid_motion(d, seed):
+    rng = np.random.default_rng(seed)
+    if d == 2:
+        a = rng.uniform(-np.pi, np.pi)
+        r = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    else:
+        r = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
+    return r, rng.normal(scale=100.0, size=d)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+@pytest.mark.parametrize("corrected", [True, False])
+def test_rigid_motion_of_the_working_frame_changes_nothing(d, corrected):
+    rng = np.random.default_rng(d)
+    x, c, t = rng.uniform(0, 4, (12, d)), rng.uniform(0, 4, (30, d)), rng.uniform(0, 4, (9, d))
+    std = np.array([0.05, 0.01, 0.03])[:d]          # anisotropic: the covariance moves along
+    em = ErrorModel.from_axis_std(0.5, 2.0, std, corrected)
+    base = plan(x, c, em, t, count=4)
+    r, shift = rigid_motion(d, 7)
+    moved = ErrorModel(0.5, 2.0, r @ em.noise_covariance @ r.T, corrected)
+    p = plan(x @ r.T + shift, c @ r.T + shift, moved, t @ r.T + shift, count=4)
+    assert p.sequence == base.sequence
+    np.testing.assert_allclose(p.gains, base.gains, rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(p.expected_after, base.expected_after, rtol=1e-9)
+    # the work volume is an axis-aligned grid: a translation moves it along exactly
+    wv = plan(x, c, em, count=2)
+    wv_moved = plan(x + shift, c + shift, em, count=2)
+    assert wv_moved.sequence == wv.sequence
+    np.testing.assert_allclose(wv_moved.gains, wv.gains, rtol=1e-6, atol=1e-12)
+
+
+def test_permuting_candidates_permutes_the_answer():
+    rng = np.random.default_rng(3)
+    x, c = rng.uniform(0, 4, (10, 3)), rng.uniform(0, 4, (40, 3))
+    perm = rng.permutation(len(c))
+    for targets in (None, rng.uniform(0, 4, (7, 3))):
+        a = plan(x, c, model(3), targets, count=5)
+        b = plan(x, c[perm], model(3), targets, count=5)
+        np.testing.assert_allclose(b.gains, a.gains[perm], rtol=1e-9, atol=1e-14)
+        assert tuple(perm[list(b.sequence)]) == a.sequence
+        np.testing.assert_allclose(b.expected_after, a.expected_after, rtol=1e-10)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_greedy_updates_agree_with_planning_again_from_scratch(d):
+    rng = np.random.default_rng(11)
+    x, c, t = rng.uniform(0, 4, (8, d)), rng.uniform(0, 4, (25, d)), rng.uniform(0, 4, (6, d))
+    em = ErrorModel.from_axis_std(0.8, 1.5, np.array([0.05, 0.02, 0.03])[:d])
+    # repeats and candidate repeats enter as noise / n
+    reps = rng.integers(1, 4, len(x))
+    p = plan(x, c, em, t, count=6, repeats=reps, config=PlanConfig(candidate_repeats=2))
+    for i in range(6):
+        more = np.vstack([x, c[list(p.sequence[:i + 1])]])
+        n = np.concatenate([reps, np.full(i + 1, 2)])
+        e = expected_squared_errors(more, t, em, n)
+        assert pooled_median(e, d) == pytest.approx(p.expected_after[i], rel=1e-9)
+        if i + 1 < 6:
+            assert p.expected_after[i + 1] < p.expected_after[i]
+
+
+def test_gain_decreases_as_fiducials_are_added():
+    rng = np.random.default_rng(5)
+    pool = rng.uniform(0, 10, (200, 2))
+    targets = rng.uniform(1, 9, (20, 2))
+    em = ErrorModel.from_axis_std(1.0, 4.0, [0.05, 0.05])
+    best, now = [], []
+    for j in (6, 12, 25, 50, 100):
+        p = plan(pool[:j], pool[j:], em, targets)
+        best.append(p.gains.max())
+        now.append(p.expected_now)
+    assert np.all(np.diff(best) < 0) and np.all(np.diff(now) < 0)
+    p = plan(pool[:6], pool[6:], em, targets, count=30)
+    steps = -np.diff(p.error_curve[1])
+    assert np.all(steps > 0) and steps[-5:].mean() < 0.2 * steps[:5].mean()
+
+
+def test_uncorrected_prefers_the_long_lever_arm():
+    """Noise only (paper section 6): a fiducial far from the centroid fixes the rotation best."""
+    x = grid(3, -1.0, 1.0, 2)
+    em = ErrorModel.from_axis_std(1e-6, 1.0, [0.1, 0.1], corrected=False)
+    p = plan(x, [[0.5, 0.2], [6.0, 0.0]], em, [[8.0, 0.0]])
+    assert p.sequence == (1,) and p.gains[1] > 3 * p.gains[0] > 0
+
+
+def test_bias_posterior_is_the_kriging_posterior():
+    rng = np.random.default_rng(2)
+    x, t = rng.uniform(0, 3, (30, 3)), rng.uniform(-1, 4, (15, 3))
+    n = rng.integers(1, 5, 30)
+    hyper = KrigingHyperparameters(0.7, 1.3, 0.09, False)
+    k = KrigingInterpolator(x, rng.normal(size=x.shape), 0.09, n, hyper)(t)
+    em = ErrorModel.from_axis_std(0.7, 1.3, np.full(3, 0.09 / np.sqrt(3)))
+    got = BiasPosterior(x, 1.0 / n, x[:0], 1.0, t, em).now()
+    np.testing.assert_allclose(got, 3 * k.expected_error ** 2, rtol=1e-8)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_isotropic_rigid_part_is_fitzpatrick_and_west(d):
+    rng = np.random.default_rng(d)
+    x = rng.normal(size=(9, d)) * np.array([3.0, 1.5, 0.7])[:d]
+    t = rng.uniform(-5, 5, (6, d))
+    fle2 = 0.04
+    got = np.trace(rigid_tre_covariance(x, t, np.eye(d) * fle2 / d), axis1=1, axis2=2)
+    c = x - x.mean(axis=0)
+    r = t - x.mean(axis=0)
+    if d == 2:
+        want = fle2 / len(x) * (1 + np.sum(r * r, 1) / (2 * np.mean(np.sum(c * c, 1))))
+    else:
+        _, _, vt = np.linalg.svd(c)
+        cp, rp = c @ vt.T, r @ vt.T                   # principal axes
+        f2 = np.array([np.mean(np.sum(np.delete(cp, k, 1) ** 2, 1)) for k in range(3)])
+        d2 = np.array([np.sum(np.delete(rp, k, 1) ** 2, 1) for k in range(3)]).T
+        want = fle2 / len(x) * (1 + np.sum(d2 / f2, axis=1) / 3)
+    np.testing.assert_allclose(got, want, rtol=1e-10)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_anisotropic_propagation_matches_monte_carlo_rigid_fits(d):
+    rng = np.random.default_rng(100 + d)
+    x = rng.uniform(-1, 1, (8, d)) * np.array([3.0, 1.0, 0.5])[:d]
+    r, shift = rigid_motion(d, 1)
+    y = x @ r.T + shift
+    targets = rng.uniform(-2, 2, (5, d))
+    std = np.array([0.05, 0.01, 0.03])[:d]
+    n = rng.integers(1, 4, len(x))                    # repeats: noise Sigma / n_j per fiducial
+    cov = np.diag(std ** 2)[None] / n[:, None, None]
+    want = rigid_tre_covariance(x, targets, cov)
+    trials = 2000
+    err = np.empty((trials, len(targets), d))
+    for k in range(trials):
+        noisy = x + rng.normal(size=x.shape) * std / np.sqrt(n)[:, None]
+        fit = rigid_fit(noisy, y)
+        err[k] = (fit.apply(targets) - (targets @ r.T + shift)) @ r   # working-frame axes
+    mc = np.einsum("nka,nkb->kab", err, err) / trials
+    tr_want, tr_mc = np.trace(want, axis1=1, axis2=2), np.trace(mc, axis1=1, axis2=2)
+    np.testing.assert_allclose(tr_mc, tr_want, rtol=0.10)
+    np.testing.assert_allclose(np.diagonal(mc, axis1=1, axis2=2),
+                               np.diagonal(want, axis1=1, axis2=2), rtol=0.15)
+    # the anisotropy is real: isotropic noise of the same total predicts something else
+    iso = rigid_tre_covariance(x, targets, np.eye(d) * np.sum(std ** 2) / d / n[:, None, None])
+    assert np.max(np.abs(np.trace(iso, axis1=1, axis2=2) / tr_want - 1)) > 0.2
+
+
+def test_pooled_median_is_the_median_of_the_pooled_errors():
+    rng = np.random.default_rng(4)
+    for d in (2, 3):
+        e = rng.uniform(0.1, 3.0, 12) ** 2
+        assert pooled_median(np.full(5, 2.0), d) == pytest.approx(
+            np.median(np.linalg.norm(rng.normal(size=(200000, d)), axis=1)) * np.sqrt(2.0 / d),
+            rel=5e-3)
+        draws = rng.normal(size=(40000, 12, d)) * np.sqrt(e / d)[None, :, None]
+        assert pooled_median(e, d) == pytest.approx(
+            np.median(np.linalg.norm(draws, axis=2)), rel=5e-3)
+        # a batch of rows spanning decades: each row's pooled CDF is 1/2 at its median
+        rows = np.exp(rng.uniform(-12, 2, (300, 9)))
+        m = pooled_median(rows, d)
+        cdf = scipy.special.gammainc(d / 2, d * m[:, None] ** 2 / (2 * rows)).mean(axis=1)
+        np.testing.assert_allclose(cdf, 0.5, atol=1e-12)
+
+
+def test_stopping_rule():
+    rng = np.random.default_rng(8)
+    pool = rng.uniform(0, 10, (300, 2))
+    t = rng.uniform(0, 10, (10, 2))
+    em = ErrorModel.from_axis_std(1.0, 4.0, [0.05, 0.05])
+    sparse = plan(pool[:6], pool[6:], em, t, count=40)
+    assert not sparse.enough and sparse.reason.startswith("measure more")
+    assert sparse.enough_after is not None and 0 < sparse.enough_after < 40
+    k = sparse.enough_after
+    # measuring the suggestions up to there makes the plan say enough
+    more = np.vstack([pool[:6], pool[6:][list(sparse.sequence[:k])]])
+    rest = np.delete(pool[6:], list(sparse.sequence[:k]), axis=0)
+    done = plan(more, rest, em, t)
+    assert done.enough and done.reason.startswith("enough") and "2 %" in done.reason
+    assert done.enough_after == 0
+    assert done.gains.max() < 0.02 * done.expected_now
+    # a length threshold stops earlier; no threshold never stops
+    by_length = plan(pool[:6], pool[6:], em, t, config=PlanConfig(min_gain_length=1e3))
+    assert by_length.enough and "1000" in by_length.reason
+    never = plan(more, rest, em, t, config=PlanConfig(min_gain_fraction=0.0))
+    assert not never.enough
+
+
+def test_the_plan_is_immutable_and_typed():
+    x = crowded(2)
+    p = plan(x, grid(4, 0.5, 3.5, 2), model(2), count=3)
+    with pytest.raises(ValueError):
+        p.gains[0] = 1.0
+    with pytest.raises(AttributeError):
+        p.enough = True
+    counts, errors = p.error_curve
+    assert list(counts) == [len(x), len(x) + 1, len(x) + 2, len(x) + 3]
+    assert errors[0] == p.expected_now and tuple(errors[1:]) == p.expected_after
+    assert not p.on_targets and len(p.points) == len(p.expected_point_errors) > 100
+    assert p.ranking[0] == p.sequence[0] and len(set(p.sequence)) == 3
+
+
+def test_work_volume_is_inside_the_hull():
+    pts = np.array([[0, 0], [4, 0], [0, 4.0], [1, 1]])
+    wv = work_volume(pts, 400)
+    assert 150 < len(wv) < 250 and np.all(wv.sum(axis=1) <= 4.0)
+    flat = np.column_stack([grid(3, 0, 1, 2), np.zeros(9)])
+    np.testing.assert_array_equal(work_volume(flat, 50), flat)
+    np.testing.assert_array_equal(work_volume(pts[:3], 50), pts[:3])   # too few for a hull
+
+
+@pytest.fixture(scope="module")
+def ra_model():
+    cell = make_cell("RA", seed=1)
+    x = np.array([m[0] for m in cell.fiducial_measurements])
+    pick = np.random.default_rng(0).permutation(len(x))
+    cfg = ModelConfig(dimension=2, interpolation="kriging", sigma=cell.spec.sigma)
+    return build_model(x[pick[:40]], cell.fiducial_truth[pick[:40]], cfg), x[pick[40:]], cell
+
+
+def test_plan_from_a_model(ra_model):
+    m, rest, cell = ra_model
+    em = error_model_from(m)
+    hyper = m.kriging_hyperparameters
+    assert em.signal_std == hyper.signal_std and em.corrected
+    np.testing.assert_allclose(np.trace(em.noise_covariance), cell.spec.sigma ** 2)
+    tw = np.array([t[0] for t in cell.target_measurements])
+    p = plan_from_model(m, rest, tw, count=3)
+    assert p.on_targets and p.fiducial_count == 40
+    assert p.expected_after[-1] < p.expected_now
+    paper = build_model(m.working, m.destination, ModelConfig(dimension=2, sigma=0.11))
+    assert error_model_from(paper).length_scale == pytest.approx(hyper.length_scale, rel=1e-6)
+
+
+def test_cross_validation_agrees_with_the_expected_error(ra_model):
+    m, _, _ = ra_model
+    cv = cross_validate(m)
+    assert cv.expected.shape == cv.actual.shape == (40,)
+    assert 0.7 < cv.ratio < 1.4
+    scaled = cross_validate(m, ErrorModel(*[getattr(error_model_from(m), f) for f in
+                                             ("signal_std", "length_scale", "noise_covariance",
+                                              "corrected")], calibration=2.0))
+    assert scaled.expected_median == pytest.approx(2 * cv.expected_median, rel=1e-9)
+
+
+X3 = crowded(3)
+C3 = np.array([[3.0, 3.0, 3.0], [1.0, 2.0, 3.0]])
+
+
+@pytest.mark.parametrize("args, kwargs, message", [
+    pytest.param((np.zeros((5, 4)), C3), {}, r"fiducials must have shape \(N, 3\)", id="shape"),
+    pytest.param((X3[:3], C3), {}, "fiducials needs at least 4 points", id="too-few"),
+    pytest.param((np.outer(np.arange(6.0), [1, 1, 1]), C3), {}, "collinear", id="collinear"),
+    pytest.param((X3, C3[:, :2]), {}, r"candidates must have shape \(N, 3\)", id="dim-mismatch"),
+    pytest.param((X3, np.zeros((0, 3))), {}, "candidates needs at least 1", id="no-candidates"),
+    pytest.param((X3, [[np.nan, 0, 0]]), {}, "candidates contains NaN", id="nan"),
+    pytest.param((X3, C3, [[0, np.inf, 0]]), {}, "targets contains NaN or inf", id="inf"),
+    pytest.param((X3, C3, [[0, 0]]), {}, r"targets must have shape \(N, 3\)", id="targets-dim"),
+    pytest.param((X3, C3), {"count": 3}, r"count \(3\) exceeds the number of candidates \(2\)",
+                 id="count-beyond"),
+    pytest.param((X3, C3), {"count": 0}, "count must be a positive integer", id="count-zero"),
+    pytest.param((X3, C3), {"repeats": [1, 2]}, "repeats must be 33 counts", id="repeats"),
+])
+def test_validation(args, kwargs, message):
+    x, c, *rest = args
+    with pytest.raises(ValueError, match=message):
+        plan(x, c, model(3), *rest, **kwargs)
+
+
+@pytest.mark.parametrize("make, message", [
+    pytest.param(lambda: PlanConfig(min_gain_fraction=1.5), "min_gain_fraction", id="fraction"),
+    pytest.param(lambda: PlanConfig(min_gain_length=-1), "min_gain_length", id="length"),
+    pytest.param(lambda: PlanConfig(work_volume_points=0), "work_volume_points", id="volume"),
+    pytest.param(lambda: PlanConfig(candidate_repeats=1.5), "candidate_repeats", id="repeats"),
+    pytest.param(lambda: ErrorModel(0.0, 1.0, np.eye(2)), "signal_std", id="signal"),
+    pytest.param(lambda: ErrorModel(1.0, np.nan, np.eye(2)), "length_scale", id="length-nan"),
+    pytest.param(lambda: ErrorModel(1.0, 1.0, np.eye(4)), r"shape \(2, 2\) or \(3, 3\)",
+                 id="cov-shape"),
+    pytest.param(lambda: ErrorModel(1.0, 1.0, [[1, 0.5], [0, 1]]), "symmetric", id="asym"),
+    pytest.param(lambda: ErrorModel(1.0, 1.0, -np.eye(3)), "semi-definite", id="negative"),
+    pytest.param(lambda: ErrorModel.from_axis_std(1.0, 1.0, [0.1, -0.1]), "axis_std",
+                 id="axis-std"),
+])
+def test_config_validation(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
