@@ -50,7 +50,7 @@ JITTER = 1e-10
 
 
 @dataclass(frozen=True, eq=False)
-class ErrorModel:
+class ExpectedErrorModel:
     """What the expected error depends on besides the locations (unit of the points).
 
     :ivar signal_std: s, prior standard deviation of each component of the bias correction.
@@ -60,7 +60,7 @@ class ErrorModel:
     :ivar corrected: True: the registration applies the correction eps(T) (kriging); False: the
         uncorrected registration (the bias stays in the error).
     :ivar calibration: factor on every expected error (1: as modelled; e.g. the ratio of
-        cross-validated to expected errors, :func:`.planner.cross_validate`).
+        cross-validated to expected errors, :func:`.model_planner.check_expected_error`).
     """
 
     signal_std: float
@@ -88,7 +88,7 @@ class ErrorModel:
 
     @classmethod
     def from_axis_std(cls, signal_std: float, length_scale: float, axis_std: ArrayLike,
-                      corrected: bool = True, calibration: float = 1.0) -> "ErrorModel":
+                      corrected: bool = True, calibration: float = 1.0) -> "ExpectedErrorModel":
         """Noise independent per working-frame axis with standard deviations ``axis_std`` (d,)."""
         std = np.asarray(axis_std, dtype=np.float64)
         if std.ndim != 1 or len(std) not in (2, 3) or not np.all(np.isfinite(std)) \
@@ -108,7 +108,7 @@ class BiasPosterior:
 
     def __init__(self, fiducials: NDArray[np.float64], inv_n: NDArray[np.float64],
                  candidates: NDArray[np.float64], candidate_inv_n: float,
-                 points: NDArray[np.float64], model: ErrorModel) -> None:
+                 points: NDArray[np.float64], model: ExpectedErrorModel) -> None:
         s2, length = model.signal_std ** 2, model.length_scale
         lam = np.clip(np.linalg.eigvalsh(model.noise_covariance), 0.0, None)
         # Equal noise on every axis: one GP serves all d components.
@@ -165,39 +165,51 @@ class BiasPosterior:
 
 def _chi2_cdf_pdf(x: NDArray[np.float64], d: int) -> tuple[NDArray[np.float64],
                                                              NDArray[np.float64]]:
-    """P(chi^2_d / 2 <= x) and its derivative in x (x = chi^2 / 2)."""
-    half = d / 2.0
-    cdf = scipy.special.gammainc(half, x)
-    pdf = np.exp((half - 1.0) * np.log(np.maximum(x, 1e-300)) - x - math.lgamma(half))
-    return cdf, pdf
+    """P(chi^2_d / 2 <= x) and its derivative in x (x = chi^2 / 2), d = 2 or 3, in closed form:
+    d = 2: 1 - e^-x and e^-x; d = 3: erf(sqrt x) - p and p = 2 sqrt(x / pi) e^-x."""
+    if d == 2:
+        pdf = np.exp(-x)
+        return 1.0 - pdf, pdf
+    root = np.sqrt(x)
+    pdf = (2.0 / math.sqrt(math.pi)) * root * np.exp(-x)
+    return scipy.special.erf(root) - pdf, pdf
 
 
-def pooled_median(expected_sq: ArrayLike, dimension: int, iterations: int = 60
-                  ) -> NDArray[np.float64]:
+def pooled_median(expected_sq: ArrayLike, dimension: int, start: Optional[ArrayLike] = None,
+                  iterations: int = 60) -> NDArray[np.float64]:
     """Median of the pooled predicted TRE distribution over the last axis (module docstring).
 
     :param expected_sq: (..., K) expected squared errors E_k (> 0).
-    :param dimension: d, the degrees of freedom of each error.
-    :return: (...) the median m with mean_k P(||e_k|| <= m) = 1/2.
+    :param dimension: d = 2 or 3, the degrees of freedom of each error.
+    :param start: (...) a guess of the medians (e.g. from a previous, similar call).
+    :return: (...) the median m with mean_k P(||e_k|| <= m) = 1/2, solved by Newton steps on
+        log m^2 kept inside a bisection bracket.
     """
     e = np.maximum(np.asarray(expected_sq, dtype=np.float64), 1e-300)
     d = int(dimension)
+    if d not in (2, 3):
+        raise ValueError(f"dimension must be 2 or 3, got {dimension!r}")
     med_d = float(scipy.special.gammaincinv(d / 2.0, 0.5))       # median of chi^2_d / 2
     # m^2 = u; each point's own median u_k = 2 med_d E_k / d brackets the pooled median.
     own = np.log(2.0 * med_d * e / d)
     lo, hi = own.min(axis=-1), own.max(axis=-1)
-    s = np.median(own, axis=-1)
+    s = np.median(own, axis=-1) if start is None else \
+        np.clip(2.0 * np.log(np.maximum(np.asarray(start, dtype=np.float64), 1e-150)), lo, hi)
     for _ in range(iterations):
         x = np.exp(s)[..., None] * d / (2.0 * e)
         cdf, pdf = _chi2_cdf_pdf(x, d)
         f = cdf.mean(axis=-1) - 0.5
-        if np.all(np.abs(f) < 1e-14):
-            break
         lo = np.where(f < 0, s, lo)
         hi = np.where(f > 0, s, hi)
         slope = (pdf * x).mean(axis=-1)                           # dF / d log u
         step = s - f / np.maximum(slope, 1e-300)                  # Newton, kept in the bracket
-        s = np.where((step >= lo) & (step <= hi), step, 0.5 * (lo + hi))
+        newton = (step >= lo) & (step <= hi)
+        new = np.where(newton, step, 0.5 * (lo + hi))
+        # quadratic convergence: after a Newton step this small the error is below 1e-14
+        done = np.all(newton & (np.abs(new - s) < 1e-7))
+        s = new
+        if done:
+            break
     return np.sqrt(np.exp(s))
 
 
@@ -211,12 +223,13 @@ def inverse_repeats(repeats: Optional[ArrayLike], j: int) -> NDArray[np.float64]
     return 1.0 / n
 
 
-def target_noise(model: ErrorModel, repeats: float) -> float:
+def target_noise(model: ExpectedErrorModel, repeats: float) -> float:
     """trace(Sigma) / n_T: the target's own measurement noise (part 3), squared length."""
     return float(np.trace(model.noise_covariance)) / repeats
 
 
-def fiducial_covariance(model: ErrorModel, inv_n: NDArray[np.float64]) -> NDArray[np.float64]:
+def fiducial_covariance(model: ExpectedErrorModel, inv_n: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
     """(J, d, d) localisation error covariance of fiducials measured 1 / inv_n times: the noise
     Sigma / n_j, plus the bias s^2 I for the uncorrected registration."""
     d = model.dimension
@@ -226,14 +239,14 @@ def fiducial_covariance(model: ErrorModel, inv_n: NDArray[np.float64]) -> NDArra
     return cov
 
 
-def expected_squared_errors(fiducials: ArrayLike, points: ArrayLike, model: ErrorModel,
+def expected_squared_errors(fiducials: ArrayLike, points: ArrayLike, model: ExpectedErrorModel,
                             repeats: Optional[ArrayLike] = None, target_repeats: float = 1.0
                             ) -> NDArray[np.float64]:
     """(K,) expected squared TRE at each point with these fiducials, calibration applied.
 
     :param fiducials: (J, d) working-frame fiducials.
     :param points: (K, d) working-frame targets.
-    :param model: :class:`ErrorModel`.
+    :param model: :class:`ExpectedErrorModel`.
     :param repeats: measurements averaged into each fiducial, n_j (default 1 each).
     :param target_repeats: measurements averaged into each target.
     :raises ValueError: on bad shapes, NaN/inf, too few or degenerate fiducials.

@@ -12,12 +12,13 @@ box of the fiducials and candidates, kept inside their convex hull (:func:`work_
 Stopping rule: the plan says ``enough`` when the best candidate is expected to reduce the median
 TRE by less than ``min_gain_fraction`` of it (default 2 %) or by less than ``min_gain_length``
 (default 0: off). ``expected_after`` is the expected error as a function of the number of
-fiducials along the suggestions; :func:`cross_validate` checks the model against leave-one-out.
+fiducials along the suggestions. :mod:`.model_planner` plans from a built model and checks the
+expected error against leave-one-out.
 
-For the CLI and the node::
+For arrays and a known error model::
 
-    model = build_model(working, destination, ModelConfig(dimension=2, interpolation="kriging"))
-    p = plan_from_model(model, candidates_working, targets_working, count=5)
+    em = ExpectedErrorModel.from_axis_std(signal_std, length_scale, axis_std)
+    p = plan(fiducials_working, candidates_working, em, targets_working, count=5)
     p.sequence, p.expected_now, p.expected_after, p.enough, p.reason
 """
 
@@ -30,13 +31,9 @@ from typing import NamedTuple, Optional
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .evaluation import leave_one_out
-from .expected_error import (BiasPosterior, ErrorModel, RigidFitError, expected_squared_errors,
-                             fiducial_covariance, inverse_repeats, pooled_median,
-                             target_noise)
+from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
+                             fiducial_covariance, inverse_repeats, pooled_median, target_noise)
 from .interpolation import HullTest
-from .kriging import KrigingInterpolator
-from .model import RbcModel
 from .validation import as_points, check_spread
 
 
@@ -111,23 +108,6 @@ class MeasurementPlan(NamedTuple):
         return n, np.array((self.expected_now,) + self.expected_after)
 
 
-class CrossValidation(NamedTuple):
-    """Leave-one-out check of the error model (unit of the points).
-
-    :ivar expected: (J,) expected TRE (RMS) of each fiducial predicted from the others.
-    :ivar actual: (J,) the leave-one-out TRE of the model (corrected or uncorrected as modelled).
-    :ivar expected_median: pooled expected median of ``expected``.
-    :ivar actual_median: median of ``actual``.
-    :ivar ratio: actual_median / expected_median (a calibration for the error model).
-    """
-
-    expected: NDArray[np.float64]
-    actual: NDArray[np.float64]
-    expected_median: float
-    actual_median: float
-    ratio: float
-
-
 def _check_count(v: object, name: str) -> int:
     if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
         raise ValueError(f"{name} must be a positive integer, got {v!r}")
@@ -182,7 +162,7 @@ def _verdict(gain: float, before: float, best: int, config: PlanConfig) -> tuple
     return False, f"measure more: {said}, at least {' and '.join(parts)}"
 
 
-def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ErrorModel,
+def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedErrorModel,
          targets: Optional[ArrayLike] = None, *, count: int = 1,
          repeats: Optional[ArrayLike] = None, config: PlanConfig = PlanConfig()
          ) -> MeasurementPlan:
@@ -190,7 +170,8 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ErrorModel,
 
     :param fiducials: (J, d) current fiducials, working frame (J >= d + 1, not degenerate).
     :param candidates: (C, d) locations that could be measured next, working frame.
-    :param error_model: :class:`.expected_error.ErrorModel` (e.g. :func:`error_model_from`).
+    :param error_model: :class:`.expected_error.ExpectedErrorModel` (e.g.
+        :func:`error_model_from`).
     :param targets: (K, d) working-frame targets that matter; None: the work volume.
     :param count: length of the greedy sequence (1 <= count <= C).
     :param repeats: measurements averaged into each current fiducial, n_j (default 1 each).
@@ -226,16 +207,18 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ErrorModel,
 
     now_sq = cal2 * (rigid.now() + const + (bias.now() if bias is not None else 0.0))
     now = float(pooled_median(now_sq, d))
-    medians = pooled_median(after(np.arange(len(c))), d)
+    medians = pooled_median(after(np.arange(len(c))), d, np.full(len(c), now))
     gains = now - medians
     chosen = np.zeros(len(c), dtype=bool)
+    guess = medians.copy()                       # warm start of the next step's medians
     sequence: list[int] = []
     expected: list[float] = []
     enough_after: Optional[int] = None
     before, enough, reason = now, False, ""
     for i in range(count):
         active = np.flatnonzero(~chosen)
-        med = medians if i == 0 else pooled_median(after(active), d)
+        med = medians if i == 0 else pooled_median(after(active), d, guess[active])
+        guess[active] = med
         k = int(np.argmin(med))                  # first of equals: the lowest index
         best, value = int(active[k]), float(med[k])
         low, words = _verdict(before - value, before, best, config)
@@ -255,53 +238,3 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ErrorModel,
                            _frozen(np.argsort(-gains, kind="stable")), enough, reason,
                            enough_after, len(x), _frozen(pts), on_targets,
                            _frozen(np.sqrt(now_sq)))
-
-
-def _applies_correction(model: RbcModel) -> bool:
-    """Whether the model's registration applies the correction eps(T) to targets (it always
-    does before the decision of issue 9 is in the model)."""
-    return True
-
-
-def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None) -> ErrorModel:
-    """The error model of a built :class:`.model.RbcModel`.
-
-    The bias hyper-parameters are the model's kriging ones (fitted now for the ``paper``
-    interpolation); the noise is isotropic with sigma / sqrt(d) per axis (sigma: the model's,
-    else the fitted one) unless ``axis_std`` (d,) gives the standard deviation per working axis.
-    """
-    hyper = model.kriging_hyperparameters
-    if hyper is None:
-        hyper = KrigingInterpolator(model.working, model.corrections, model.sigma,
-                                    model.counts).hyper
-    d = model.config.dimension
-    std = np.full(d, hyper.noise_std / math.sqrt(d)) if axis_std is None else axis_std
-    return ErrorModel.from_axis_std(hyper.signal_std, hyper.length_scale, std,
-                                    corrected=_applies_correction(model))
-
-
-def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[ArrayLike] = None,
-                    *, count: int = 1, config: PlanConfig = PlanConfig(),
-                    error_model: Optional[ErrorModel] = None) -> MeasurementPlan:
-    """:func:`plan` from the model's fiducials, repeats and error model (or ``error_model``)."""
-    em = error_model_from(model) if error_model is None else error_model
-    return plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
-                config=config)
-
-
-def cross_validate(model: RbcModel, error_model: Optional[ErrorModel] = None) -> CrossValidation:
-    """Compare the expected leave-one-out error of each fiducial (predicted from the others)
-    with the model's actual leave-one-out TRE (:func:`.evaluation.leave_one_out`).
-
-    :return: :class:`CrossValidation`; ``ratio`` can serve as ``ErrorModel.calibration``.
-    """
-    em = error_model_from(model) if error_model is None else error_model
-    x, n = model.working, model.counts
-    keep = ~np.eye(len(x), dtype=bool)
-    expected = np.array([expected_squared_errors(x[keep[k]], x[k:k + 1], em, n[keep[k]],
-                                                 float(n[k]))[0] for k in range(len(x))])
-    loo = leave_one_out(model)
-    actual = loo.tre_c if em.corrected else loo.tre_u
-    exp_med = float(pooled_median(expected, em.dimension))
-    act_med = float(np.median(actual))
-    return CrossValidation(np.sqrt(expected), actual, exp_med, act_med, act_med / exp_med)

@@ -118,7 +118,7 @@ class RigidFitError:
         """(len(active), K) TRE_rigid^2 after adding each candidate ``active`` alone."""
         g_inv = np.linalg.inv(self.g[None] + self.gc[active])
         theta = g_inv @ (self.s[None] + self.sc[active]) @ g_inv
-        return np.einsum("cij,kij->ck", theta, self.q)
+        return theta.reshape(len(theta), -1) @ self.q.reshape(len(self.q), -1).T
 
     def add(self, c: int) -> None:
         """Condition on candidate ``c`` having been measured."""

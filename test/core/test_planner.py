@@ -1,16 +1,19 @@
 """The measurement planner (issue 13): expected error, ranking, stopping rule, validation."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.special
 from scipy.spatial.transform import Rotation
 
 from rbc_registration.core import ModelConfig, build_model
-from rbc_registration.core.expected_error import (BiasPosterior, ErrorModel,
+from rbc_registration.core.expected_error import (BiasPosterior, ExpectedErrorModel,
                                                   expected_squared_errors, pooled_median)
 from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpolator
-from rbc_registration.core.planner import (PlanConfig, cross_validate, error_model_from, plan,
-                                           plan_from_model, work_volume)
+from rbc_registration.core.model_planner import (check_expected_error, error_model_from,
+                                                 expected_target_error, plan_from_model)
+from rbc_registration.core.planner import PlanConfig, plan, work_volume
 from rbc_registration.core.registration import rigid_fit
 from rbc_registration.core.rigid_tre import rigid_tre_covariance
 from rbc_registration.core.synthetic import make_cell
@@ -22,7 +25,7 @@ def grid(n, lo, hi, d):
 
 
 def model(d, noise=0.02, length=1.5, corrected=True):
-    return ErrorModel.from_axis_std(1.0, length, np.full(d, noise), corrected)
+    return ExpectedErrorModel.from_axis_std(1.0, length, np.full(d, noise), corrected)
 
 
 def crowded(d):
@@ -65,10 +68,10 @@ def test_rigid_motion_of_the_working_frame_changes_nothing(d, corrected):
     rng = np.random.default_rng(d)
     x, c, t = rng.uniform(0, 4, (12, d)), rng.uniform(0, 4, (30, d)), rng.uniform(0, 4, (9, d))
     std = np.array([0.05, 0.01, 0.03])[:d]          # anisotropic: the covariance moves along
-    em = ErrorModel.from_axis_std(0.5, 2.0, std, corrected)
+    em = ExpectedErrorModel.from_axis_std(0.5, 2.0, std, corrected)
     base = plan(x, c, em, t, count=4)
     r, shift = rigid_motion(d, 7)
-    moved = ErrorModel(0.5, 2.0, r @ em.noise_covariance @ r.T, corrected)
+    moved = ExpectedErrorModel(0.5, 2.0, r @ em.noise_covariance @ r.T, corrected)
     p = plan(x @ r.T + shift, c @ r.T + shift, moved, t @ r.T + shift, count=4)
     assert p.sequence == base.sequence
     np.testing.assert_allclose(p.gains, base.gains, rtol=1e-7, atol=1e-12)
@@ -96,7 +99,7 @@ def test_permuting_candidates_permutes_the_answer():
 def test_greedy_updates_agree_with_planning_again_from_scratch(d):
     rng = np.random.default_rng(11)
     x, c, t = rng.uniform(0, 4, (8, d)), rng.uniform(0, 4, (25, d)), rng.uniform(0, 4, (6, d))
-    em = ErrorModel.from_axis_std(0.8, 1.5, np.array([0.05, 0.02, 0.03])[:d])
+    em = ExpectedErrorModel.from_axis_std(0.8, 1.5, np.array([0.05, 0.02, 0.03])[:d])
     # repeats and candidate repeats enter as noise / n
     reps = rng.integers(1, 4, len(x))
     p = plan(x, c, em, t, count=6, repeats=reps, config=PlanConfig(candidate_repeats=2))
@@ -113,7 +116,7 @@ def test_gain_decreases_as_fiducials_are_added():
     rng = np.random.default_rng(5)
     pool = rng.uniform(0, 10, (200, 2))
     targets = rng.uniform(1, 9, (20, 2))
-    em = ErrorModel.from_axis_std(1.0, 4.0, [0.05, 0.05])
+    em = ExpectedErrorModel.from_axis_std(1.0, 4.0, [0.05, 0.05])
     best, now = [], []
     for j in (6, 12, 25, 50, 100):
         p = plan(pool[:j], pool[j:], em, targets)
@@ -128,7 +131,7 @@ def test_gain_decreases_as_fiducials_are_added():
 def test_uncorrected_prefers_the_long_lever_arm():
     """Noise only (paper section 6): a fiducial far from the centroid fixes the rotation best."""
     x = grid(3, -1.0, 1.0, 2)
-    em = ErrorModel.from_axis_std(1e-6, 1.0, [0.1, 0.1], corrected=False)
+    em = ExpectedErrorModel.from_axis_std(1e-6, 1.0, [0.1, 0.1], corrected=False)
     p = plan(x, [[0.5, 0.2], [6.0, 0.0]], em, [[8.0, 0.0]])
     assert p.sequence == (1,) and p.gains[1] > 3 * p.gains[0] > 0
 
@@ -139,7 +142,7 @@ def test_bias_posterior_is_the_kriging_posterior():
     n = rng.integers(1, 5, 30)
     hyper = KrigingHyperparameters(0.7, 1.3, 0.09, False)
     k = KrigingInterpolator(x, rng.normal(size=x.shape), 0.09, n, hyper)(t)
-    em = ErrorModel.from_axis_std(0.7, 1.3, np.full(3, 0.09 / np.sqrt(3)))
+    em = ExpectedErrorModel.from_axis_std(0.7, 1.3, np.full(3, 0.09 / np.sqrt(3)))
     got = BiasPosterior(x, 1.0 / n, x[:0], 1.0, t, em).now()
     np.testing.assert_allclose(got, 3 * k.expected_error ** 2, rtol=1e-8)
 
@@ -212,7 +215,7 @@ def test_stopping_rule():
     rng = np.random.default_rng(8)
     pool = rng.uniform(0, 10, (300, 2))
     t = rng.uniform(0, 10, (10, 2))
-    em = ErrorModel.from_axis_std(1.0, 4.0, [0.05, 0.05])
+    em = ExpectedErrorModel.from_axis_std(1.0, 4.0, [0.05, 0.05])
     sparse = plan(pool[:6], pool[6:], em, t, count=40)
     assert not sparse.enough and sparse.reason.startswith("measure more")
     assert sparse.enough_after is not None and 0 < sparse.enough_after < 40
@@ -273,18 +276,18 @@ def test_plan_from_a_model(ra_model):
     p = plan_from_model(m, rest, tw, count=3)
     assert p.on_targets and p.fiducial_count == 40
     assert p.expected_after[-1] < p.expected_now
+    assert expected_target_error(m, tw) == pytest.approx(p.expected_now, rel=1e-12)
+    assert 0.5 * p.expected_now < expected_target_error(m) < 2 * p.expected_now
     paper = build_model(m.working, m.destination, ModelConfig(dimension=2, sigma=0.11))
     assert error_model_from(paper).length_scale == pytest.approx(hyper.length_scale, rel=1e-6)
 
 
 def test_cross_validation_agrees_with_the_expected_error(ra_model):
     m, _, _ = ra_model
-    cv = cross_validate(m)
+    cv = check_expected_error(m)
     assert cv.expected.shape == cv.actual.shape == (40,)
     assert 0.7 < cv.ratio < 1.4
-    scaled = cross_validate(m, ErrorModel(*[getattr(error_model_from(m), f) for f in
-                                             ("signal_std", "length_scale", "noise_covariance",
-                                              "corrected")], calibration=2.0))
+    scaled = check_expected_error(m, dataclasses.replace(error_model_from(m), calibration=2.0))
     assert scaled.expected_median == pytest.approx(2 * cv.expected_median, rel=1e-9)
 
 
@@ -317,13 +320,14 @@ def test_validation(args, kwargs, message):
     pytest.param(lambda: PlanConfig(min_gain_length=-1), "min_gain_length", id="length"),
     pytest.param(lambda: PlanConfig(work_volume_points=0), "work_volume_points", id="volume"),
     pytest.param(lambda: PlanConfig(candidate_repeats=1.5), "candidate_repeats", id="repeats"),
-    pytest.param(lambda: ErrorModel(0.0, 1.0, np.eye(2)), "signal_std", id="signal"),
-    pytest.param(lambda: ErrorModel(1.0, np.nan, np.eye(2)), "length_scale", id="length-nan"),
-    pytest.param(lambda: ErrorModel(1.0, 1.0, np.eye(4)), r"shape \(2, 2\) or \(3, 3\)",
+    pytest.param(lambda: ExpectedErrorModel(0.0, 1.0, np.eye(2)), "signal_std", id="signal"),
+    pytest.param(lambda: ExpectedErrorModel(1.0, np.nan, np.eye(2)), "length_scale",
+                 id="length-nan"),
+    pytest.param(lambda: ExpectedErrorModel(1.0, 1.0, np.eye(4)), r"shape \(2, 2\) or \(3, 3\)",
                  id="cov-shape"),
-    pytest.param(lambda: ErrorModel(1.0, 1.0, [[1, 0.5], [0, 1]]), "symmetric", id="asym"),
-    pytest.param(lambda: ErrorModel(1.0, 1.0, -np.eye(3)), "semi-definite", id="negative"),
-    pytest.param(lambda: ErrorModel.from_axis_std(1.0, 1.0, [0.1, -0.1]), "axis_std",
+    pytest.param(lambda: ExpectedErrorModel(1.0, 1.0, [[1, 0.5], [0, 1]]), "symmetric", id="asym"),
+    pytest.param(lambda: ExpectedErrorModel(1.0, 1.0, -np.eye(3)), "semi-definite", id="negative"),
+    pytest.param(lambda: ExpectedErrorModel.from_axis_std(1.0, 1.0, [0.1, -0.1]), "axis_std",
                  id="axis-std"),
 ])
 def test_config_validation(make, message):

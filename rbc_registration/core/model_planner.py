@@ -1,0 +1,107 @@
+"""The measurement planner for a built :class:`.model.RbcModel` (what the CLI and node call).
+
+The model gives the fiducials (working frame), their repeats and the error model: the bias
+hyper-parameters of its kriging, its noise sigma, and whether it applies the correction::
+
+    model = build_model(working, destination, ModelConfig(dimension=2, interpolation="kriging"))
+    p = plan_from_model(model, candidates_working, targets_working, count=5)
+    p.sequence, p.expected_now, p.expected_after, p.enough, p.reason
+    expected_target_error(model)                 # the expected median TRE now (work volume)
+    check_expected_error(model).ratio            # leave-one-out: actual / expected
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Optional
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .evaluation import leave_one_out
+from .expected_error import ExpectedErrorModel, expected_squared_errors, pooled_median
+from .kriging import KrigingInterpolator
+from .model import RbcModel
+from .planner import MeasurementPlan, PlanConfig, plan, work_volume
+
+
+class ExpectedErrorCheck(NamedTuple):
+    """Leave-one-out check of the error model (unit of the points).
+
+    :ivar expected: (J,) expected TRE (RMS) of each fiducial predicted from the others.
+    :ivar actual: (J,) the leave-one-out TRE of the model (corrected or uncorrected as modelled).
+    :ivar expected_median: pooled expected median of ``expected``.
+    :ivar actual_median: median of ``actual``.
+    :ivar ratio: actual_median / expected_median (a calibration for the error model).
+    """
+
+    expected: NDArray[np.float64]
+    actual: NDArray[np.float64]
+    expected_median: float
+    actual_median: float
+    ratio: float
+
+
+def _applies_correction(model: RbcModel) -> bool:
+    """Whether the model's registration applies the correction eps(T) to targets (it always
+    does before the decision of issue 9 is in the model)."""
+    return True
+
+
+def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None
+                     ) -> ExpectedErrorModel:
+    """The error model of a built :class:`.model.RbcModel`.
+
+    The bias hyper-parameters are the model's kriging ones (fitted now for the ``paper``
+    interpolation); the noise is isotropic with sigma / sqrt(d) per axis (sigma: the model's,
+    else the fitted one) unless ``axis_std`` (d,) gives the standard deviation per working axis.
+    """
+    hyper = model.kriging_hyperparameters
+    if hyper is None:
+        hyper = KrigingInterpolator(model.working, model.corrections, model.sigma,
+                                    model.counts).hyper
+    d = model.config.dimension
+    std = np.full(d, hyper.noise_std / math.sqrt(d)) if axis_std is None else axis_std
+    return ExpectedErrorModel.from_axis_std(hyper.signal_std, hyper.length_scale, std,
+                                    corrected=_applies_correction(model))
+
+
+def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[ArrayLike] = None,
+                    *, count: int = 1, config: PlanConfig = PlanConfig(),
+                    error_model: Optional[ExpectedErrorModel] = None) -> MeasurementPlan:
+    """:func:`plan` from the model's fiducials, repeats and error model (or ``error_model``)."""
+    em = error_model_from(model) if error_model is None else error_model
+    return plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
+                config=config)
+
+
+def expected_target_error(model: RbcModel, targets: Optional[ArrayLike] = None, *,
+                          config: PlanConfig = PlanConfig(),
+                          error_model: Optional[ExpectedErrorModel] = None) -> float:
+    """Expected median TRE of the model now, over ``targets`` (K, d) (working frame) or, without
+    them, over the work volume of the fiducials (:func:`work_volume`): what a plan calls
+    ``expected_now``, without candidates (e.g. for a status report)."""
+    em = error_model_from(model) if error_model is None else error_model
+    pts = work_volume(model.working, config.work_volume_points) if targets is None else targets
+    return float(pooled_median(expected_squared_errors(model.working, pts, em, model.counts,
+                                                       config.target_repeats), em.dimension))
+
+
+def check_expected_error(model: RbcModel, error_model: Optional[ExpectedErrorModel] = None
+                         ) -> ExpectedErrorCheck:
+    """Compare the expected leave-one-out error of each fiducial (predicted from the others)
+    with the model's actual leave-one-out TRE (:func:`.evaluation.leave_one_out`).
+
+    :return: :class:`ExpectedErrorCheck`; ``ratio`` can serve as
+        ``ExpectedErrorModel.calibration``.
+    """
+    em = error_model_from(model) if error_model is None else error_model
+    x, n = model.working, model.counts
+    keep = ~np.eye(len(x), dtype=bool)
+    expected = np.array([expected_squared_errors(x[keep[k]], x[k:k + 1], em, n[keep[k]],
+                                                 float(n[k]))[0] for k in range(len(x))])
+    loo = leave_one_out(model)
+    actual = loo.tre_c if em.corrected else loo.tre_u
+    exp_med = float(pooled_median(expected, em.dimension))
+    act_med = float(np.median(actual))
+    return ExpectedErrorCheck(np.sqrt(expected), actual, exp_med, act_med, act_med / exp_med)
