@@ -113,7 +113,7 @@ def run_planner(cell: Cell, start_idx: list[int], stop: int, targets, config: Pl
         for f in FRACTIONS:
             if f not in enough and fraction < f:
                 enough[f] = {"count": j, "tre": tre[-1] if j <= stop else cell.tre(m),
-                             "expected": p.expected_now}
+                             "expected": p.expected_now, "expected_all": p.expected_with_all}
                 if f == config.min_gain_fraction and not p.enough:
                     raise RuntimeError(f"the plan's own rule disagrees: {p.reason}")
         if j >= stop and (len(enough) == len(FRACTIONS) or not follow_to_enough):
@@ -144,6 +144,21 @@ def mean_curve(runs: list[dict], order: str) -> np.ndarray:
     return np.mean([r[order]["tre"] for r in runs], axis=0)
 
 
+def above(runs: list[dict], order: str, counts: np.ndarray) -> str:
+    """Counts where ``order``'s mean is above the better of random and grid, each with the
+    paired mean difference and its standard error over the seeds."""
+    mine = np.array([r[order]["tre"] for r in runs])
+    rand = np.array([r["random"]["tre"] for r in runs])
+    grid = np.array([r["grid"]["tre"] for r in runs])
+    best = np.where(rand.mean(axis=0) <= grid.mean(axis=0), rand, grid)
+    diff = mine - best
+    se = diff.std(axis=0, ddof=1) / np.sqrt(len(runs)) if len(runs) > 1 else np.full(
+        diff.shape[1], np.nan)
+    out = [f"{j} (+{diff[:, i].mean():.4f} ± {se[i]:.4f})" for i, j in enumerate(counts)
+           if diff[:, i].mean() > 0]
+    return ", ".join(out) or "none"
+
+
 def report(name: str, runs: list[dict], start: int, stop: int) -> list[str]:
     counts = np.arange(start, stop + 1)
     curves = {o: mean_curve(runs, o) for o in ORDERS}
@@ -155,33 +170,37 @@ def report(name: str, runs: list[dict], start: int, stop: int) -> list[str]:
         i = j - start
         lines.append(f"| {j} | " + " | ".join(f"{curves[o][i]:.4f}" for o in ORDERS)
                      + f" | {expected[i]:.4f} |")
-    others = np.minimum(curves["random"], curves["grid"])
-    worse = [int(j) for j, p, o in zip(counts, curves["planner"], others) if p > o]
-    worse_wv = [int(j) for j, p, o in zip(counts, curves["planner (work volume)"], others)
-                if p > o]
+    worse = above(runs, "planner", counts)
+    worse_wv = above(runs, "planner (work volume)", counts)
     target = curves["random"][-1]
     reach = next((int(j) for j, p in zip(counts, curves["planner"]) if p <= target), None)
     reach_wv = next((int(j) for j, p in zip(counts, curves["planner (work volume)"])
                      if p <= target), None)
     lines += ["", f"- counts {start}-{stop} where the planner's mean is above the better of "
-              f"random and grid: {worse or 'none'}; planner (work volume): {worse_wv or 'none'}",
+              f"random and grid (paired difference ± its standard error, mm): {worse}; "
+              f"planner (work volume): {worse_wv}",
               f"- random order with {stop} fiducials: {target:.4f} mm; the planner first reaches "
               f"it at {reach} fiducials, the planner (work volume) at {reach_wv}",
               "", "Stopping rule (planner order, targets given): the first count at which the "
-              "best candidate is expected to gain less than the fraction; actual TRE there "
-              "against the TRE with all fiducials.", "",
-              "| fraction | seed | enough at | TRE there | expected there | TRE, all fiducials "
-              "| there / all |", "|---|---|---|---|---|---|---|"]
+              "best candidate is expected to gain less than the fraction of the expected median "
+              f"TRE; mean [min-max] over the seeds; all fiducials: {runs[0]['n_fiducials']}.",
+              "", "| fraction | enough at | actual TRE there | actual TRE, all fiducials | "
+              "there / all | expected there | expected with all (model at the stop) | "
+              "expected with all / there |", "|---|---|---|---|---|---|---|---|"]
     for f in FRACTIONS:
-        for seed, r in enumerate(runs):
-            e = r["planner"]["enough"].get(str(f))
-            if e is None:
-                lines.append(f"| {f:g} | {seed} | never (all {r['n_fiducials']} used) | | | "
-                             f"{r['all_tre']:.4f} | |")
-            else:
-                lines.append(f"| {f:g} | {seed} | {e['count']} | {e['tre']:.4f} | "
-                             f"{e['expected']:.4f} | {r['all_tre']:.4f} | "
-                             f"{e['tre'] / r['all_tre']:.3f} |")
+        e = [r["planner"]["enough"].get(str(f)) for r in runs]
+        if any(x is None for x in e):
+            lines.append(f"| {f:g} | not reached in every seed | | | | | | |")
+            continue
+        count = np.array([x["count"] for x in e])
+        ratio = np.array([x["tre"] / r["all_tre"] for x, r in zip(e, runs)])
+        pred = np.array([x["expected_all"] / x["expected"] for x in e])
+        lines.append(
+            f"| {f:g} | {count.mean():.1f} [{count.min()}-{count.max()}] | "
+            f"{np.mean([x['tre'] for x in e]):.4f} | {np.mean([r['all_tre'] for r in runs]):.4f} "
+            f"| {ratio.mean():.3f} [{ratio.min():.3f}-{ratio.max():.3f}] | "
+            f"{np.mean([x['expected'] for x in e]):.4f} | "
+            f"{np.mean([x['expected_all'] for x in e]):.4f} | {pred.mean():.3f} |")
     lines += ["", "Leave-one-out check of the expected error (planner order, mean over seeds): ",
               "", "| fiducials | expected LOO median | actual LOO median | ratio |",
               "|---|---|---|---|"]
@@ -196,6 +215,7 @@ def report(name: str, runs: list[dict], start: int, stop: int) -> list[str]:
 
 def figure(results: dict, start: int, stop: int, path: str) -> None:
     import matplotlib
+    import matplotlib.ticker
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, len(results), figsize=(6.2 * len(results), 4.4))
@@ -205,17 +225,23 @@ def figure(results: dict, start: int, stop: int, path: str) -> None:
         for o in ORDERS:
             ax.plot(counts, mean_curve(runs, o), styles[o], label=o)
         ax.plot(counts, np.mean([r["planner"]["expected"] for r in runs], axis=0), "C0--",
-                lw=0.8, label="planner: expected (model)")
+                lw=0.8, label="planner: expected (model, before measuring)")
         ax.axhline(np.mean([r["all_tre"] for r in runs]), color="0.5", lw=0.8,
                    label="all fiducials")
-        stops = [r["planner"]["enough"]["0.02"]["count"] for r in runs
-                 if "0.02" in r["planner"]["enough"]]
-        for s in stops:
-            ax.axvline(s, color="C3", lw=0.6, alpha=0.6)
-        ax.set_title(f"{name}: mean of {len(runs)} seeds (red: 'enough' per seed)")
+        planner = mean_curve(runs, "planner")
+        for f, marker in zip(FRACTIONS, "ovs"):
+            e = [r["planner"]["enough"].get(str(f)) for r in runs]
+            if all(x is not None for x in e):
+                n = float(np.mean([x["count"] for x in e]))
+                if n <= stop:
+                    ax.plot(n, np.interp(n, counts, planner), "C3" + marker, ms=7,
+                            label=f"'enough' at {100 * f:g} % (mean count)")
+        ax.set_title(f"{name}: mean of {len(runs)} seeds")
         ax.set_xlabel("fiducials measured")
         ax.set_ylabel("median target TRE (mm)")
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.2f"))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()

@@ -32,9 +32,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
-                             fiducial_covariance, inverse_repeats, pooled_median, target_noise)
+                             expected_squared_errors, fiducial_covariance, inverse_repeats,
+                             pooled_median, target_noise)
 from .interpolation import HullTest
 from .validation import as_points, check_spread
+
+#: ``expected_with_all`` conditions on J + C points at once (one Cholesky factorisation,
+#: O((J + C)^3)); beyond this many it is not computed.
+ALL_CANDIDATES_MAX = 2000
 
 
 @dataclass(frozen=True)
@@ -86,6 +91,8 @@ class MeasurementPlan(NamedTuple):
     :ivar points: (K, d) where the error was taken: the targets, or the work-volume sample.
     :ivar on_targets: True when ``points`` are the given targets.
     :ivar expected_point_errors: (K,) expected RMS TRE at each point now.
+    :ivar expected_with_all: expected median TRE if every candidate were measured (what
+        measuring can still buy); None when J + C > :data:`ALL_CANDIDATES_MAX`.
     """
 
     sequence: tuple[int, ...]
@@ -100,6 +107,7 @@ class MeasurementPlan(NamedTuple):
     points: NDArray[np.float64]
     on_targets: bool
     expected_point_errors: NDArray[np.float64]
+    expected_with_all: Optional[float]
 
     @property
     def error_curve(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
@@ -162,6 +170,13 @@ def _verdict(gain: float, before: float, best: int, config: PlanConfig) -> tuple
     return False, f"measure more: {said}, at least {' and '.join(parts)}"
 
 
+def _remaining(with_all: Optional[float], now: float, count: int) -> str:
+    if with_all is None:
+        return ""
+    return (f"; measuring all {count} candidates is expected to bring it to {with_all:.4g} "
+            f"({100 * (with_all / now - 1):+.1f} %)")
+
+
 def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedErrorModel,
          targets: Optional[ArrayLike] = None, *, count: int = 1,
          repeats: Optional[ArrayLike] = None, config: PlanConfig = PlanConfig()
@@ -207,6 +222,11 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
 
     now_sq = cal2 * (rigid.now() + const + (bias.now() if bias is not None else 0.0))
     now = float(pooled_median(now_sq, d))
+    with_all = None
+    if len(x) + len(c) <= ALL_CANDIDATES_MAX:
+        n_all = np.concatenate([1.0 / inv_n, np.full(len(c), float(config.candidate_repeats))])
+        with_all = float(pooled_median(expected_squared_errors(
+            np.vstack([x, c]), pts, error_model, n_all, config.target_repeats), d))
     medians = pooled_median(after(np.arange(len(c))), d, np.full(len(c), now))
     gains = now - medians
     chosen = np.zeros(len(c), dtype=bool)
@@ -223,7 +243,7 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
         best, value = int(active[k]), float(med[k])
         low, words = _verdict(before - value, before, best, config)
         if i == 0:
-            enough, reason = low, words
+            enough, reason = low, words + _remaining(with_all, now, len(c))
         if low and enough_after is None:
             enough_after = i
         sequence.append(best)
@@ -237,4 +257,4 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     return MeasurementPlan(tuple(sequence), now, tuple(expected), _frozen(gains),
                            _frozen(np.argsort(-gains, kind="stable")), enough, reason,
                            enough_after, len(x), _frozen(pts), on_targets,
-                           _frozen(np.sqrt(now_sq)))
+                           _frozen(np.sqrt(now_sq)), with_all)

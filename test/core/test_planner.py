@@ -110,6 +110,10 @@ def test_greedy_updates_agree_with_planning_again_from_scratch(d):
         assert pooled_median(e, d) == pytest.approx(p.expected_after[i], rel=1e-9)
         if i + 1 < 6:
             assert p.expected_after[i + 1] < p.expected_after[i]
+    # measuring every candidate, in whatever order, ends where expected_with_all says
+    every = plan(x, c, em, t, count=len(c), repeats=reps, config=PlanConfig(candidate_repeats=2))
+    assert every.expected_after[-1] == pytest.approx(p.expected_with_all, rel=1e-9)
+    assert "measuring all 25 candidates is expected to bring it to" in p.reason
 
 
 def test_gain_decreases_as_fiducials_are_added():
