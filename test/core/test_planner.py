@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 import scipy.special
+from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from rbc_registration.core import ModelConfig, build_model
@@ -81,6 +82,21 @@ def test_rigid_motion_of_the_working_frame_changes_nothing(d, corrected):
     wv_moved = plan(x + shift, c + shift, em, count=2)
     assert wv_moved.sequence == wv.sequence
     np.testing.assert_allclose(wv_moved.gains, wv.gains, rtol=1e-6, atol=1e-12)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2 ** 31 - 1), st.sampled_from([2, 3]))
+def test_property_rigid_motion_and_candidate_order_change_no_gain(seed, d):
+    rng = np.random.default_rng(seed)
+    x, c, t = rng.uniform(0, 4, (9, d)), rng.uniform(0, 4, (20, d)), rng.uniform(0, 4, (5, d))
+    em = ExpectedErrorModel.from_axis_std(0.5, 2.0, rng.uniform(0.01, 0.1, d))
+    base = plan(x, c, em, t)
+    r, shift = rigid_motion(d, seed)
+    perm = rng.permutation(len(c))
+    moved = ExpectedErrorModel(0.5, 2.0, r @ em.noise_covariance @ r.T)
+    p = plan(x @ r.T + shift, c[perm] @ r.T + shift, moved, t @ r.T + shift)
+    np.testing.assert_allclose(p.gains, base.gains[perm], rtol=1e-6, atol=1e-12)
+    assert p.expected_now == pytest.approx(base.expected_now, rel=1e-9)
 
 
 def test_permuting_candidates_permutes_the_answer():
