@@ -112,10 +112,11 @@ def test_permuting_candidates_permutes_the_answer():
 
 
 @pytest.mark.parametrize("d", [2, 3])
-def test_greedy_updates_agree_with_planning_again_from_scratch(d):
+@pytest.mark.parametrize("corrected", [True, False])
+def test_greedy_updates_agree_with_planning_again_from_scratch(d, corrected):
     rng = np.random.default_rng(11)
     x, c, t = rng.uniform(0, 4, (8, d)), rng.uniform(0, 4, (25, d)), rng.uniform(0, 4, (6, d))
-    em = ExpectedErrorModel.from_axis_std(0.8, 1.5, np.array([0.05, 0.02, 0.03])[:d])
+    em = ExpectedErrorModel.from_axis_std(0.8, 1.5, np.array([0.05, 0.02, 0.03])[:d], corrected)
     # repeats and candidate repeats enter as noise / n
     reps = rng.integers(1, 4, len(x))
     p = plan(x, c, em, t, count=6, repeats=reps, config=PlanConfig(candidate_repeats=2))
