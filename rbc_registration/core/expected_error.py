@@ -41,6 +41,7 @@ import scipy.special
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.distance import cdist
 
+from .constants import DIMENSIONS
 from .kriging import _matern52
 from .rigid_tre import RigidFitError
 from .validation import as_points
@@ -75,7 +76,7 @@ class ExpectedErrorModel:
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a positive finite number, got {v!r}")
         cov = np.array(self.noise_covariance, dtype=np.float64)
-        if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or cov.shape[0] not in (2, 3):
+        if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or cov.shape[0] not in DIMENSIONS:
             raise ValueError(f"noise_covariance must have shape (2, 2) or (3, 3), got {cov.shape}")
         if not np.all(np.isfinite(cov)):
             raise ValueError("noise_covariance contains NaN or inf")
@@ -91,7 +92,7 @@ class ExpectedErrorModel:
                       corrected: bool = True, calibration: float = 1.0) -> "ExpectedErrorModel":
         """Noise independent per working-frame axis with standard deviations ``axis_std`` (d,)."""
         std = np.asarray(axis_std, dtype=np.float64)
-        if std.ndim != 1 or len(std) not in (2, 3) or not np.all(np.isfinite(std)) \
+        if std.ndim != 1 or len(std) not in DIMENSIONS or not np.all(np.isfinite(std)) \
                 or (std < 0).any():
             raise ValueError(f"axis_std must be 2 or 3 finite values >= 0, got {axis_std!r}")
         return cls(signal_std, length_scale, np.diag(std * std), corrected, calibration)
@@ -187,7 +188,7 @@ def pooled_median(expected_sq: ArrayLike, dimension: int, start: Optional[ArrayL
     """
     e = np.maximum(np.asarray(expected_sq, dtype=np.float64), 1e-300)
     d = int(dimension)
-    if d not in (2, 3):
+    if d not in DIMENSIONS:
         raise ValueError(f"dimension must be 2 or 3, got {dimension!r}")
     med_d = float(scipy.special.gammaincinv(d / 2.0, 0.5))       # median of chi^2_d / 2
     # m^2 = u; each point's own median u_k = 2 med_d E_k / d brackets the pooled median.

@@ -22,7 +22,7 @@ from .evaluation import leave_one_out
 from .expected_error import ExpectedErrorModel, expected_squared_errors, pooled_median
 from .kriging import KrigingInterpolator
 from .model import RbcModel
-from .planner import MeasurementPlan, PlanConfig, plan, work_volume
+from .planner import DEFAULT_PLAN_CONFIG, MeasurementPlan, PlanConfig, plan, work_volume
 
 
 class ExpectedErrorCheck(NamedTuple):
@@ -67,7 +67,7 @@ def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None
 
 
 def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[ArrayLike] = None,
-                    *, count: int = 1, config: PlanConfig = PlanConfig(),
+                    *, count: int = 1, config: PlanConfig = DEFAULT_PLAN_CONFIG,
                     error_model: Optional[ExpectedErrorModel] = None) -> MeasurementPlan:
     """:func:`plan` from the model's fiducials, repeats and error model (or ``error_model``)."""
     em = error_model_from(model) if error_model is None else error_model
@@ -76,7 +76,7 @@ def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[Ar
 
 
 def expected_target_error(model: RbcModel, targets: Optional[ArrayLike] = None, *,
-                          config: PlanConfig = PlanConfig(),
+                          config: PlanConfig = DEFAULT_PLAN_CONFIG,
                           error_model: Optional[ExpectedErrorModel] = None) -> float:
     """Expected median TRE of the model now, over ``targets`` (K, d) (working frame) or, without
     them, over the work volume of the fiducials (:func:`work_volume`): what a plan calls

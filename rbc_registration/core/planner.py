@@ -122,6 +122,10 @@ def _check_count(v: object, name: str) -> int:
     return int(v)
 
 
+#: The defaults (2 %, no length threshold, 400 work-volume points, single measurements).
+DEFAULT_PLAN_CONFIG = PlanConfig()
+
+
 def _frozen(a: ArrayLike) -> NDArray:
     out = np.array(a)
     out.setflags(write=False)
@@ -179,7 +183,7 @@ def _remaining(with_all: Optional[float], now: float, count: int) -> str:
 
 def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedErrorModel,
          targets: Optional[ArrayLike] = None, *, count: int = 1,
-         repeats: Optional[ArrayLike] = None, config: PlanConfig = PlanConfig()
+         repeats: Optional[ArrayLike] = None, config: PlanConfig = DEFAULT_PLAN_CONFIG
          ) -> MeasurementPlan:
     """Rank candidate fiducials by the expected reduction of the median TRE (module docstring).
 
