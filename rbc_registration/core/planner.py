@@ -15,6 +15,10 @@ TRE by less than ``min_gain_fraction`` of it (default 2 %) or by less than ``min
 fiducials along the suggestions. :mod:`.model_planner` plans from a built model and checks the
 expected error against leave-one-out.
 
+Cost: one Cholesky factorisation of the J fiducials per noise axis (O(J^3); one axis when the
+noise is isotropic), O((K + C) J^2) to condition the K points and C candidates on them, then
+O(K C) per greedy step; ``expected_with_all`` adds one factorisation of J + C points.
+
 For arrays and a known error model::
 
     em = ExpectedErrorModel.from_axis_std(signal_std, length_scale, axis_std)
