@@ -35,7 +35,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from rbc_registration.core.evaluation import target_errors  # noqa: E402
 from rbc_registration.core.model import ModelConfig, RbcModel, build_model  # noqa: E402
 from rbc_registration.core.model_planner import (check_expected_error,  # noqa: E402
                                                  plan_from_model)
@@ -43,8 +42,12 @@ from rbc_registration.core.planner import PlanConfig  # noqa: E402
 from rbc_registration.core.synthetic import make_cell  # noqa: E402
 
 ORDERS = ("planner", "planner (work volume)", "random", "grid")
-#: The model every order is evaluated with (and the planner plans for). One line to switch.
-MODEL = "kriging interpolation, iterative restoration (2 steps), sigma given (the cell's)"
+#: The model every order is evaluated with (and the planner plans for): :func:`build`. With the
+#: decision of issue 9 in the model, its default mode decides what targets get.
+_DECISION = getattr(ModelConfig(), "decision", None)
+MODEL = ("kriging interpolation, iterative restoration (2 steps), sigma given (the cell's)"
+         + ("" if _DECISION is None else
+            f", decision mode {getattr(_DECISION, 'value', _DECISION)} (the default)"))
 CV_COUNTS = (10, 20, 40, 60)
 #: Stopping fractions reported; the default of PlanConfig (0.02) first.
 FRACTIONS = (0.02, 0.01, 0.005)
@@ -70,7 +73,11 @@ class Cell:
         return build(self.x[idx], self.y[idx], self.sigma, self.dim)
 
     def tre(self, model: RbcModel) -> float:
-        return float(np.median(target_errors(model, self.tw, self.td).tre_c))
+        """Median TRE of the targets at the point the model serves: the decided one
+        (``destination``) when the model has the decision of issue 9, else the corrected one."""
+        tc = model.correct(self.tw)
+        served = getattr(tc, "destination", tc.corrected)
+        return float(np.median(np.linalg.norm(served - self.td, axis=1)))
 
 
 def farthest_point_order(points: np.ndarray, start: list[int], count: int) -> list[int]:

@@ -43,9 +43,11 @@ class ExpectedErrorCheck(NamedTuple):
 
 
 def _applies_correction(model: RbcModel) -> bool:
-    """Whether the model's registration applies the correction eps(T) to targets (it always
-    does before the decision of issue 9 is in the model)."""
-    return True
+    """Whether the model's registration applies the correction eps(T) to targets: the
+    cross-validated decision of issue 9 when the model has one (``decision.apply``), else
+    always (the model serves the corrected registration)."""
+    decision = getattr(model, "decision", None)
+    return True if decision is None else bool(decision.apply)
 
 
 def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None

@@ -1,6 +1,7 @@
 """The measurement planner (issue 13): expected error, ranking, stopping rule, validation."""
 
 import dataclasses
+import types
 
 import numpy as np
 import pytest
@@ -301,6 +302,27 @@ def test_plan_from_a_model(ra_model):
     assert 0.5 * p.expected_now < expected_target_error(m) < 2 * p.expected_now
     paper = build_model(m.working, m.destination, ModelConfig(dimension=2, sigma=0.11))
     assert error_model_from(paper).length_scale == pytest.approx(hyper.length_scale, rel=1e-6)
+
+
+class Decided:
+    """A model with the decision of issue 9 (``decision.apply``), for the planner's adapter."""
+
+    def __init__(self, model, apply):
+        self._model = model
+        self.decision = types.SimpleNamespace(apply=apply)
+
+    def __getattr__(self, name):
+        return getattr(self._model, name)
+
+
+def test_the_error_model_follows_the_models_decision(ra_model):
+    m, rest, _ = ra_model
+    assert error_model_from(Decided(m, True)).corrected
+    off = error_model_from(Decided(m, False))
+    assert not off.corrected
+    # uncorrected: the bias stays, so the expected error is larger and the plan ranks by the fit
+    p_on, p_off = plan_from_model(m, rest), plan_from_model(Decided(m, False), rest)
+    assert p_off.expected_now > 2 * p_on.expected_now
 
 
 def test_cross_validation_agrees_with_the_expected_error(ra_model):
