@@ -1,9 +1,15 @@
 """Pairwise distance mismatch L_ij (paper eq. 1), its standard deviation sigma_L (eq. 7) and
-histograms of L. Computed in row blocks so J up to ~10^4 stays within memory."""
+histograms of L.
+
+sigma_L is an O(J^2) pass over the pairs. It is computed in blocks of :data:`ROWS_PER_BLOCK` rows
+of the pair matrix, so its temporary memory is O(J) (about ``2 (S + 1) ROWS_PER_BLOCK J`` floats
+for S working-frame sets), and :func:`sigma_l_stages` evaluates several working-frame sets against
+one destination set in the same pass, computing the destination distances once.
+"""
 
 from __future__ import annotations
 
-from typing import Iterator, NamedTuple, Optional
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -11,22 +17,34 @@ from scipy.spatial.distance import cdist, pdist
 
 from .validation import as_point_pairs
 
-_BLOCK_PAIRS = 2_000_000  # pairs per block: bounds the temporary memory to ~100 MB
+#: Rows i of the pair matrix (pairs (i, j), j > i) handled per block by :func:`sigma_l_stages`.
+ROWS_PER_BLOCK = 32
 
 
-def _blocks(x: NDArray[np.float64], y: NDArray[np.float64]) -> Iterator[NDArray[np.float64]]:
-    """Yield L_ij for i < j in row-major pair order, in blocks of about ``_BLOCK_PAIRS``."""
-    j = len(x)
-    if j * (j - 1) // 2 <= _BLOCK_PAIRS:
-        yield pdist(x) - pdist(y)
-        return
-    rows = max(1, _BLOCK_PAIRS // j)
-    for start in range(0, j - 1, rows):
-        stop = min(j - 1, start + rows)
-        mask = np.arange(start + 1, j)[None, :] > np.arange(start, stop)[:, None]
-        dx = cdist(x[start:stop], x[start + 1:])
-        dy = cdist(y[start:stop], y[start + 1:])
-        yield (dx - dy)[mask]
+class _Moments:
+    """Count, mean and sum of squared deviations of a stream of chunks (Chan et al. merge)."""
+
+    __slots__ = ("n", "mean", "m2")
+
+    def __init__(self) -> None:
+        self.n, self.mean, self.m2 = 0, 0.0, 0.0
+
+    def add(self, chunk: NDArray[np.float64]) -> None:
+        """Merge the values of ``chunk`` (1-D, overwritten: it is centred in place)."""
+        n_b = chunk.size
+        if n_b == 0:
+            return
+        mean_b = float(chunk.sum()) / n_b
+        chunk -= mean_b
+        m2_b = float(chunk @ chunk)
+        total = self.n + n_b
+        delta = mean_b - self.mean
+        self.mean += delta * n_b / total
+        self.m2 += m2_b + delta * delta * self.n * n_b / total
+        self.n = total
+
+    def std(self) -> float:
+        return float(np.sqrt(max(self.m2, 0.0) / self.n))
 
 
 def pairwise_mismatch(working: ArrayLike, destination: ArrayLike) -> NDArray[np.float64]:
@@ -37,27 +55,59 @@ def pairwise_mismatch(working: ArrayLike, destination: ArrayLike) -> NDArray[np.
     :return: array of J(J-1)/2 mismatches in row-major pair order (0,1), (0,2), ..., (J-2,J-1).
     """
     x, y = as_point_pairs(working, destination, min_count=2)
-    return np.concatenate(list(_blocks(x, y)))
+    out = pdist(x)
+    out -= pdist(y)
+    return out
+
+
+def sigma_l_stages(stages: Sequence[ArrayLike], destination: ArrayLike) -> tuple[float, ...]:
+    """sigma_L (paper eq. 7, 1/J_p) of each working-frame set in ``stages`` against ``destination``.
+
+    One pass over the pairs: the destination distances of a block are computed once and shared
+    by every stage (e.g. the fiducials after each restoration step). Temporary memory is O(J).
+
+    :param stages: working-frame fiducial sets, each of shape (J, d) like ``destination``.
+    :param destination: the same fiducials in the destination frame, shape (J, d).
+    :return: sigma_L of each stage, in the order given.
+    :raises ValueError: on fewer than 2 points, mismatched shapes or non-finite values.
+    """
+    pairs = [as_point_pairs(s, destination, min_count=2) for s in stages]
+    if not pairs:
+        return ()
+    y = pairs[0][1]
+    xs = [p[0] for p in pairs]
+    j = len(y)
+    rows = min(ROWS_PER_BLOCK, j)
+    inner = np.triu_indices(rows, k=1)              # pairs inside a full block, i < k
+    size = rows * j
+    buf_y, buf_x = np.empty(size), np.empty(size)
+    acc = [_Moments() for _ in xs]
+    for a in range(0, j - 1, rows):
+        b = min(j, a + rows)
+        # Pairs (i, k) with a <= i < b and k > i: those with k >= b, then those inside the block.
+        n_cross = (b - a) * (j - b)
+        tri = inner if b - a == rows else np.triu_indices(b - a, k=1)
+        n = n_cross + len(tri[0])
+
+        def fill(points: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+            cdist(points[a:b], points[b:], out=out[:n_cross].reshape(b - a, j - b))
+            out[n_cross:n] = cdist(points[a:b], points[a:b])[tri]
+
+        fill(y, buf_y)
+        for x, m in zip(xs, acc):
+            fill(x, buf_x)
+            chunk = buf_x[:n]
+            chunk -= buf_y[:n]                      # L_ik, eq. 1
+            m.add(chunk)
+    return tuple(m.std() for m in acc)
 
 
 def sigma_l(working: ArrayLike, destination: ArrayLike) -> float:
     """Standard deviation of the pairwise mismatch L over all J_p pairs (paper eq. 7, 1/J_p).
 
-    Accumulated block by block (shifted sums), so it never holds all J(J-1)/2 values.
+    Accumulated block by block (see :func:`sigma_l_stages`): it never holds all J(J-1)/2 values.
     """
-    x, y = as_point_pairs(working, destination, min_count=2)
-    n = 0
-    shift = None
-    s1 = s2 = 0.0
-    for block in _blocks(x, y):
-        if shift is None:
-            shift = float(block.mean())
-        b = block - shift
-        n += b.size
-        s1 += float(b.sum())
-        s2 += float(b @ b)
-    mean = s1 / n
-    return float(np.sqrt(max(s2 / n - mean * mean, 0.0)))
+    return sigma_l_stages([working], destination)[0]
 
 
 class Histogram(NamedTuple):

@@ -200,7 +200,7 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
         sigma, source = None, "unknown"
 
     restoration = restore_rigid_body(x, y, config.restoration, config.steps)
-    rho, recommendation = assess(restoration.sigma_l[0], sigma, config.rho_reject,
+    rho, recommendation = assess(restoration.sigma_l0, sigma, config.rho_reject,
                                  config.rho_apply)
     uncorrected = _fit_subset(x, y, config.uncorrected_subset, "uncorrected_subset")
     corrected = _fit_subset(restoration.corrected(x), y, config.corrected_subset,

@@ -21,7 +21,9 @@ to second order in the bias.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import math
+from dataclasses import InitVar, dataclass, field
+from typing import Optional, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -29,7 +31,7 @@ import scipy.sparse.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from .constants import RESTORATIONS as METHODS
-from .mismatch import sigma_l
+from .mismatch import sigma_l_stages
 from .registration import rigid_fit
 from .validation import as_point_pairs, check_spread
 
@@ -38,30 +40,76 @@ SOLVERS = ("auto", "direct", "cg")
 DIRECT_MAX_FIDUCIALS = 3000
 
 
-class RestorationResult(NamedTuple):
-    """Outcome of an RBC restoration (same unit as the input points).
+@dataclass(frozen=True, eq=False)
+class RestorationResult:
+    """Outcome of an RBC restoration (same unit as the input points). Immutable.
+
+    sigma_L (eq. 7) of a stage is an O(J^2) pass, so it is computed only when asked for and then
+    kept: :attr:`sigma_l0` alone (what rho needs) or :attr:`sigma_l` for every stage (the stages
+    still missing are computed together, in one pass). Concurrent first reads from several threads
+    are safe; at worst a value is computed twice.
 
     :ivar corrections: eps, shape (J, d): corrected fiducials are ``working - corrections``.
     :ivar step_corrections: the corrections of each step (eps', eps'', ...); one for closed-form.
-    :ivar sigma_l: sigma_L (eq. 7) before any step and after each step (NaN when not computed).
     :ivar method: ``"iterative"`` or ``"closed-form"``.
+    :ivar working: the working-frame fiducials X the restoration started from, (J, d).
+    :ivar destination: the destination-frame fiducials Y, (J, d).
     """
 
     corrections: NDArray[np.float64]
     step_corrections: tuple[NDArray[np.float64], ...]
-    sigma_l: tuple[float, ...]
     method: str
+    working: NDArray[np.float64] = field(repr=False)
+    destination: NDArray[np.float64] = field(repr=False)
+    compute_sigma_l: InitVar[bool] = True
+    #: sigma_L per stage once computed (None: not yet); NaN throughout when switched off.
+    _sigma: list = field(init=False, repr=False)
 
-    def corrected(self, working: ArrayLike) -> NDArray[np.float64]:
-        """The corrected fiducials ``working - corrections``."""
-        return np.asarray(working, dtype=np.float64) - self.corrections
+    def __post_init__(self, compute_sigma_l: bool) -> None:
+        n = len(self.step_corrections) + 1
+        object.__setattr__(self, "_sigma", [None if compute_sigma_l else math.nan] * n)
 
-    def stages(self, working: ArrayLike) -> list[NDArray[np.float64]]:
-        """The fiducials before any step and after each step (for sigma_L and histograms of L)."""
-        out = [np.asarray(working, dtype=np.float64)]
+    def corrected(self, working: Optional[ArrayLike] = None) -> NDArray[np.float64]:
+        """The corrected fiducials ``working - corrections`` (default: :attr:`working`)."""
+        x = self.working if working is None else np.asarray(working, dtype=np.float64)
+        return x - self.corrections
+
+    def stages(self, working: Optional[ArrayLike] = None) -> list[NDArray[np.float64]]:
+        """The fiducials before any step and after each step (for sigma_L and histograms of L):
+        ``working`` (default :attr:`working`) minus the sum of the steps so far."""
+        x = self.working if working is None else np.asarray(working, dtype=np.float64)
+        out = [x]
+        total = np.zeros_like(x)
         for eps in self.step_corrections:
-            out.append(out[-1] - eps)
+            total = total + eps
+            out.append(x - total)
         return out
+
+    def _sigma_of(self, wanted: Sequence[int]) -> None:
+        missing = [k for k in wanted if self._sigma[k] is None]
+        if missing:
+            stages = self.stages()
+            values = sigma_l_stages([stages[k] for k in missing], self.destination)
+            for k, v in zip(missing, values):
+                self._sigma[k] = v              # one list item: atomic, so safe across threads
+
+    @property
+    def sigma_l0(self) -> float:
+        """sigma_L before any step (eq. 7): the mismatch rho compares with sigma."""
+        self._sigma_of([0])
+        return self._sigma[0]
+
+    @property
+    def sigma_l(self) -> tuple[float, ...]:
+        """sigma_L (eq. 7) before any step and after each step: (sigma_L0, sigma_L1, ...);
+        NaN when switched off (``compute_sigma_l=False``)."""
+        self._sigma_of(range(len(self._sigma)))
+        return tuple(self._sigma)
+
+    @property
+    def sigma_l_cached(self) -> tuple[float, ...]:
+        """The sigma_L values computed so far, NaN for the others; never computes (cheap)."""
+        return tuple(math.nan if v is None else v for v in self._sigma)
 
 
 def rigid_motion_basis(points: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -252,8 +300,8 @@ def restore_rigid_body(working: ArrayLike, destination: ArrayLike, method: str =
     :param method: ``"iterative"`` (the paper's Gauss-Newton steps) or ``"closed-form"``.
     :param steps: number of iterative steps (the paper uses 2); ignored by closed-form.
     :param solver: linear solver of each iterative step, see :func:`gauss_newton_step`.
-    :param compute_sigma_l: compute sigma_L (eq. 7) before and after each step; it costs
-        O(J^2), so callers timing very large J may switch it off (values are then NaN).
+    :param compute_sigma_l: when False, sigma_L is never computed and reads as NaN; by default
+        each value is computed on first access (:class:`RestorationResult`).
     :return: :class:`RestorationResult`.
     :raises ValueError: on bad input, a degenerate configuration or an unknown method.
     """
@@ -268,21 +316,16 @@ def restore_rigid_body(working: ArrayLike, destination: ArrayLike, method: str =
                          f"fiducials, got {len(x)}")
     check_spread(x, "working points")
     check_spread(y, "destination points")
-
-    def sig(points: NDArray[np.float64]) -> float:
-        return sigma_l(points, y) if compute_sigma_l else float("nan")
-
     if method == "closed-form":
         eps = closed_form_corrections(x, y)
-        return RestorationResult(eps, (eps,), (sig(x), sig(x - eps)), method)
-    current = x
-    total = np.zeros_like(x)
-    step_eps = []
-    sig_l = [sig(x)]
-    for _ in range(int(steps)):
-        eps = gauss_newton_step(current, y, solver)
-        step_eps.append(eps)
-        total = total + eps
-        current = x - total
-        sig_l.append(sig(current))
-    return RestorationResult(total, tuple(step_eps), tuple(sig_l), method)
+        step_eps = [eps]
+    else:
+        current = x
+        eps = np.zeros_like(x)
+        step_eps = []
+        for _ in range(int(steps)):
+            step = gauss_newton_step(current, y, solver)
+            step_eps.append(step)
+            eps = eps + step
+            current = x - eps
+    return RestorationResult(eps, tuple(step_eps), method, x, y, compute_sigma_l)

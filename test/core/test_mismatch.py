@@ -22,7 +22,7 @@ def test_blocked_path_equals_single_block(monkeypatch):
     y = x + rng.normal(scale=1e-3, size=x.shape)
     whole = mismatch.pairwise_mismatch(x, y)
     s = mismatch.sigma_l(x, y)
-    monkeypatch.setattr(mismatch, "_BLOCK_PAIRS", 1000)
+    monkeypatch.setattr(mismatch, "ROWS_PER_BLOCK", 7)
     np.testing.assert_array_equal(mismatch.pairwise_mismatch(x, y), whole)
     assert mismatch.sigma_l(x, y) == pytest.approx(s, rel=1e-9)
 
