@@ -11,16 +11,14 @@ sector rule with the sectors that hold fiducials (the nearest fiducial alone if 
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from .sectors import GRID_MIN_TARGETS, SectorIndex, on_fiducial_tolerance, sector_weights
 from .validation import as_point_pairs, as_points
-
-#: Fiducials looked at around a 2D target when filling the 8 sectors.
-SECTOR_CANDIDATES = 64
 
 
 class Interpolated(NamedTuple):
@@ -58,8 +56,10 @@ class HullTest:
                 self.tri = None
                 self.interval = (float(local.min()), float(local.max()))
             else:
-                # QJ joggles exactly regular grids, whose cospherical points are degenerate.
-                self.tri = Delaunay(local, qhull_options="QJ")
+                # QJ joggles exactly regular grids, whose cospherical points are degenerate; it
+                # needs d + 2 points, and d + 1 points are one simplex anyway (default options).
+                joggle = "QJ" if len(local) > local.shape[1] + 1 else None
+                self.tri = Delaunay(local, qhull_options=joggle)
         except QhullError as exc:
             raise ValueError(f"fiducials span no area for a convex hull: "
                              f"{str(exc).splitlines()[0]}") from None
@@ -102,6 +102,7 @@ class PaperInterpolator:
                              f"spanning a {'volume' if self.dim == 3 else 'area'}; use "
                              f"{'dimension 2 or ' if self.dim == 3 else ''}kriging")
         self.tree = cKDTree(self.points)
+        self._sector_index: Optional[SectorIndex] = None
 
     def weights(self, targets: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.float64],
                                                     NDArray[np.bool_]]:
@@ -127,7 +128,7 @@ class PaperInterpolator:
     def _idw(self, t: NDArray[np.float64], k: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         dist, idx = self.tree.query(t, k=min(k, len(self.points)))
         dist, idx = np.atleast_2d(dist), np.atleast_2d(idx)
-        hit = dist[:, :1] <= 1e-12 * max(1.0, float(np.abs(self.points).max()))
+        hit = dist[:, :1] <= on_fiducial_tolerance(self.points)
         w = np.where(hit, (np.arange(idx.shape[1]) == 0).astype(float), 1.0 / np.maximum(dist, 1e-300))
         return idx, w / w.sum(axis=1, keepdims=True)
 
@@ -148,20 +149,9 @@ class PaperInterpolator:
         return idx, w
 
     def _sectors(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        k = min(SECTOR_CANDIDATES, len(self.points))
-        dist, cand = self.tree.query(t, k=k)
-        dist, cand = dist.reshape(len(t), k), cand.reshape(len(t), k)
-        delta = self.points[cand] - t[:, None, :]
-        sector = np.floor((np.arctan2(delta[..., 1], delta[..., 0]) + np.pi / 8)
-                          / (np.pi / 4)).astype(np.intp) % 8
-        in_sector = sector[:, :, None] == np.arange(8)            # (K, k, 8)
-        filled = in_sector.any(axis=1)                            # (K, 8)
-        first = in_sector.argmax(axis=1)                          # candidates sorted by distance
-        rows = np.arange(len(t))[:, None]
-        idx = cand[rows, first]
-        w = np.where(filled, 1.0 / np.maximum(dist[rows, first], 1e-300), 0.0)
-        # A target on a fiducial takes that fiducial's correction.
-        on = dist[:, 0] <= 1e-12 * max(1.0, float(np.abs(self.points).max()))
-        idx[on] = cand[on, :1]
-        w[on] = np.eye(8)[0]
-        return idx, w / w.sum(axis=1, keepdims=True)
+        """The 8-sector rule (:mod:`.sectors`); batches use the prepared grid, built on first use."""
+        if len(t) < GRID_MIN_TARGETS:
+            return sector_weights(self.tree, self.points, t)
+        if self._sector_index is None:
+            self._sector_index = SectorIndex(self.points, self.tree)
+        return self._sector_index.weights(t)

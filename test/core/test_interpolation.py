@@ -125,3 +125,18 @@ def test_kriging_reuses_hyperparameters_and_validates():
         KrigingInterpolator(pts, smooth(pts), sigma=1e-4, repeats=np.zeros(125))
     with pytest.raises(ValueError, match="sigma"):
         KrigingInterpolator(pts, smooth(pts), sigma=-1.0)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_minimal_fiducial_count_is_one_simplex(dim):
+    """d + 1 fiducials (the fewest a model accepts) interpolate linearly inside their simplex."""
+    pts = np.vstack([np.zeros(dim), np.eye(dim) * 2.0])
+    def field(p):
+        return p @ np.arange(1.0, dim * dim + 1).reshape(dim, dim) * 0.01 + 0.5
+
+    ip = PaperInterpolator(pts, field(pts))
+    t = np.full((1, dim), 0.3)
+    res = ip(t)
+    assert res.inside_hull.all()
+    if dim == 3:                                  # barycentric: exact for a linear field
+        np.testing.assert_allclose(res.correction, field(t), atol=1e-12)

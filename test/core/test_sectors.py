@@ -1,0 +1,138 @@
+"""The 2D sector rule (eq. 5 in 2D): the grid path gives exactly the weights of the original
+implementation, kept here verbatim as the reference."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scipy.spatial import cKDTree
+
+from rbc_registration.core import sectors
+from rbc_registration.core.interpolation import PaperInterpolator
+
+
+def reference_sectors(points, targets):
+    """PaperInterpolator._sectors before the grid path (commit 5d63195), unchanged."""
+    tree = cKDTree(points)
+    k = min(64, len(points))
+    dist, cand = tree.query(targets, k=k)
+    dist, cand = dist.reshape(len(targets), k), cand.reshape(len(targets), k)
+    delta = points[cand] - targets[:, None, :]
+    sector = np.floor((np.arctan2(delta[..., 1], delta[..., 0]) + np.pi / 8)
+                      / (np.pi / 4)).astype(np.intp) % 8
+    in_sector = sector[:, :, None] == np.arange(8)            # (K, k, 8)
+    filled = in_sector.any(axis=1)                            # (K, 8)
+    first = in_sector.argmax(axis=1)                          # candidates sorted by distance
+    rows = np.arange(len(targets))[:, None]
+    idx = cand[rows, first]
+    w = np.where(filled, 1.0 / np.maximum(dist[rows, first], 1e-300), 0.0)
+    on = dist[:, 0] <= 1e-12 * max(1.0, float(np.abs(points).max()))
+    idx[on] = cand[on, :1]
+    w[on] = np.eye(8)[0]
+    return idx, w / w.sum(axis=1, keepdims=True)
+
+
+def assert_same_weights(points, targets):
+    """Weights identical (bit for bit), the same fiducial in every used slot, and the same
+    interpolated corrections, through PaperInterpolator (grid path for K >= 32)."""
+    eps = np.random.default_rng(99).normal(size=points.shape)
+    ip = PaperInterpolator(points, eps)
+    idx, w, _ = ip.weights(targets)
+    ref_idx, ref_w = reference_sectors(points, targets)
+    np.testing.assert_array_equal(w, ref_w)
+    used = ref_w > 0
+    np.testing.assert_array_equal(idx[used], ref_idx[used])
+    np.testing.assert_array_equal(ip(targets).correction,
+                                  np.einsum("km,kmd->kd", ref_w, eps[ref_idx]))
+    return ip
+
+
+def grid(nx, ny, pitch=25.0):
+    return np.stack(np.meshgrid(np.arange(nx) * pitch, np.arange(ny) * pitch, indexing="ij"),
+                    -1).reshape(-1, 2)
+
+
+def spread_targets(points, k, rng, margin=0.1):
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    ext = hi - lo
+    return lo - margin * ext + (1 + 2 * margin) * ext * rng.uniform(size=(k, 2))
+
+
+@pytest.mark.parametrize("case", ["uniform", "noisy-grid", "clusters", "thin", "far-offset",
+                                  "few", "many"])
+def test_grid_path_equals_reference_on_random_cells(case):
+    rng = np.random.default_rng(hash(case) % 2**32)
+    if case == "uniform":
+        pts = rng.uniform(0, 3.0, (277, 2))
+    elif case == "noisy-grid":
+        pts = grid(17, 21) + rng.normal(scale=0.1, size=(357, 2))
+    elif case == "clusters":
+        pts = np.concatenate([c + rng.normal(scale=0.05, size=(60, 2))
+                              for c in rng.uniform(0, 2, (5, 2))])
+    elif case == "thin":                                   # 40 : 1 strip
+        pts = rng.uniform(0, 1, (300, 2)) * [40.0, 1.0]
+    elif case == "far-offset":                             # tracker coordinates far from 0
+        pts = 1e5 + rng.uniform(0, 2.0, (200, 2))
+    elif case == "few":                                    # J < 64: the cap never binds
+        pts = rng.uniform(-1, 1, (12, 2))
+    else:
+        pts = rng.uniform(0, 10.0, (3000, 2))
+    targets = spread_targets(pts, 3000, rng)
+    assert_same_weights(pts, targets)
+
+
+def test_exact_grid_with_ties_midpoints_and_targets_on_fiducials():
+    """A regular grid: targets on holes, on midpoints (equidistant fiducials), at cell centres
+    and random; ties and on-fiducial targets take the reference path and still agree."""
+    pts = grid(17, 21)
+    rng = np.random.default_rng(3)
+    special = np.concatenate([pts[::7], pts[:-1:5] + [12.5, 0.0], pts[:-1:3] + [12.5, 12.5],
+                              pts[::11] + [0.0, 1e-13]])
+    targets = np.concatenate([special, spread_targets(pts, 2000, rng)])
+    assert_same_weights(pts, targets)
+
+
+def test_small_batches_and_repeated_batches_agree():
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(0, 1, (150, 2))
+    ip = assert_same_weights(pts, spread_targets(pts, 5, rng))           # general path only
+    t = spread_targets(pts, 500, rng)
+    for _ in range(2):                                                     # cells reused
+        idx, w, _ = ip.weights(t)
+        np.testing.assert_array_equal(w, reference_sectors(pts, t)[1])
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(j=st.integers(3, 200), seed=st.integers(0, 2**32 - 1),
+       aspect=st.floats(0.05, 20.0), scale=st.sampled_from([1e-3, 1.0, 1e3]))
+def test_property_grid_path_equals_reference(j, seed, aspect, scale):
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(0, 1, (j, 2)) * [scale * aspect, scale]
+    if np.linalg.svd(pts - pts.mean(0), compute_uv=False)[-1] < 1e-6 * scale:
+        return                                             # collinear: refused by the hull
+    assert_same_weights(pts, spread_targets(pts, 400, rng, margin=0.3))
+
+
+def test_sector_of_is_the_formula():
+    rng = np.random.default_rng(5)
+    ang = np.concatenate([rng.uniform(-np.pi, np.pi, 20000),
+                          np.arange(-8, 9) * np.pi / 8,                 # boundaries and axes
+                          np.arange(-8, 9) * np.pi / 8 + 1e-12,
+                          np.arange(-8, 9) * np.pi / 8 - 1e-12])
+    r = rng.uniform(1e-3, 1e3, len(ang))
+    dx, dy = r * np.cos(ang), r * np.sin(ang)
+    dx = np.concatenate([dx, [0.0, -0.0, 1.0, -1.0, 0.0, 0.0, -1.0, -1.0]])
+    dy = np.concatenate([dy, [0.0, 0.0, 0.0, 0.0, 1.0, -1.0, 0.0, -0.0]])
+    want = np.floor((np.arctan2(dy, dx) + np.pi / 8) / (np.pi / 4)).astype(np.intp) % 8
+    np.testing.assert_array_equal(sectors.sector_of(dx, dy), want)
+
+
+def test_grid_cells_are_prepared_once_and_kept():
+    rng = np.random.default_rng(6)
+    pts = rng.uniform(0, 1, (100, 2))
+    index = sectors.SectorIndex(pts, cKDTree(pts))
+    t = spread_targets(pts, 200, rng, margin=0.0)
+    index.weights(t)
+    prepared = index._used
+    index.weights(t)
+    assert prepared > 0 and index._used == prepared
