@@ -17,7 +17,10 @@ setup(
         ('share/' + package_name + '/msg', glob('msg_docs/rbc_registration_interfaces/msg/*.msg')),
     ],
     python_requires='>=3.10',
-    install_requires=['numpy', 'scipy', 'matplotlib', 'rosbags', 'pyyaml'],
+    # Lowest versions CI runs the pure suite with (Ubuntu 24.04's apt numpy / scipy / matplotlib /
+    # yaml, constraints-ubuntu2404.txt); the pins of constraints.txt are the highest tested.
+    install_requires=['numpy>=1.26', 'scipy>=1.11', 'matplotlib>=3.6', 'rosbags>=0.11.0',
+                      'pyyaml>=6.0.1'],
     extras_require={'test': ['pytest', 'hypothesis']},
     zip_safe=True,
     maintainer='rbc_registration maintainers',

@@ -30,6 +30,7 @@ import scipy.linalg
 import scipy.sparse.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from . import compat
 from .constants import RESTORATIONS as METHODS
 from .mismatch import sigma_l_stages
 from .registration import rigid_fit
@@ -228,8 +229,7 @@ def _solve_cg(working: NDArray[np.float64], destination: NDArray[np.float64],
 
     pre_proj = scipy.sparse.linalg.LinearOperator((j * d, j * d),
                                                   matvec=lambda v: project(pre.matvec(project(v))))
-    eps, info = scipy.sparse.linalg.cg(op, rhs, rtol=rtol, atol=0.0, maxiter=20 * j * d,
-                                       M=pre_proj)
+    eps, info = compat.cg(op, rhs, rtol=rtol, atol=0.0, maxiter=20 * j * d, M=pre_proj)
     if info > 0:
         raise np.linalg.LinAlgError(f"restoration CG did not converge in {info} iterations")
     return project(eps).reshape(j, d)
