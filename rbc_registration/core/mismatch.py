@@ -1,9 +1,9 @@
 """Pairwise distance mismatch L_ij (paper eq. 1), its standard deviation sigma_L (eq. 7) and
 histograms of L.
 
-sigma_L is an O(J^2) pass over the pairs. It is computed in blocks of :data:`ROWS_PER_BLOCK` rows
-of the pair matrix, so its temporary memory is O(J) (about ``2 (S + 1) ROWS_PER_BLOCK J`` floats
-for S working-frame sets), and :func:`sigma_l_stages` evaluates several working-frame sets against
+sigma_L is an O(J^2) pass over the pairs. Beyond :data:`ONE_BLOCK_PAIRS` pairs it is computed in
+blocks of :data:`ROWS_PER_BLOCK` rows of the pair matrix, so its temporary memory is O(J) (about
+``3 ROWS_PER_BLOCK J`` floats), and :func:`sigma_l_stages` evaluates several working-frame sets against
 one destination set in the same pass, computing the destination distances once.
 """
 
@@ -19,6 +19,8 @@ from .validation import as_point_pairs
 
 #: Rows i of the pair matrix (pairs (i, j), j > i) handled per block by :func:`sigma_l_stages`.
 ROWS_PER_BLOCK = 32
+#: Up to this many pairs (J <= 362) :func:`sigma_l_stages` takes them in one block (512 KB).
+ONE_BLOCK_PAIRS = 1 << 16
 
 
 class _Moments:
@@ -77,11 +79,17 @@ def sigma_l_stages(stages: Sequence[ArrayLike], destination: ArrayLike) -> tuple
     y = pairs[0][1]
     xs = [p[0] for p in pairs]
     j = len(y)
-    rows = min(ROWS_PER_BLOCK, j)
-    inner = np.triu_indices(rows, k=1)              # pairs inside a full block, i < k
-    size = rows * j
-    buf_y, buf_x = np.empty(size), np.empty(size)
     acc = [_Moments() for _ in xs]
+    if j * (j - 1) // 2 <= ONE_BLOCK_PAIRS:         # small J: all pairs at once
+        dy = pdist(y)
+        for x, m in zip(xs, acc):
+            chunk = pdist(x)
+            chunk -= dy                             # L_ij, eq. 1
+            m.add(chunk)
+        return tuple(m.std() for m in acc)
+    rows = ROWS_PER_BLOCK
+    inner = np.triu_indices(rows, k=1)              # pairs inside a full block, i < k
+    buf_y, buf_x = np.empty(rows * j), np.empty(rows * j)
     for a in range(0, j - 1, rows):
         b = min(j, a + rows)
         # Pairs (i, k) with a <= i < b and k > i: those with k >= b, then those inside the block.
@@ -97,7 +105,7 @@ def sigma_l_stages(stages: Sequence[ArrayLike], destination: ArrayLike) -> tuple
         for x, m in zip(xs, acc):
             fill(x, buf_x)
             chunk = buf_x[:n]
-            chunk -= buf_y[:n]                      # L_ik, eq. 1
+            chunk -= buf_y[:n]                      # L_ij, eq. 1
             m.add(chunk)
     return tuple(m.std() for m in acc)
 

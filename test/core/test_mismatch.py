@@ -23,6 +23,7 @@ def test_blocked_path_equals_single_block(monkeypatch):
     whole = mismatch.pairwise_mismatch(x, y)
     s = mismatch.sigma_l(x, y)
     monkeypatch.setattr(mismatch, "ROWS_PER_BLOCK", 7)
+    monkeypatch.setattr(mismatch, "ONE_BLOCK_PAIRS", 100)
     np.testing.assert_array_equal(mismatch.pairwise_mismatch(x, y), whole)
     assert mismatch.sigma_l(x, y) == pytest.approx(s, rel=1e-9)
 
