@@ -96,14 +96,12 @@ def sector_weights(tree: cKDTree, points: NDArray[np.float64], targets: NDArray[
     dist, cand = dist.reshape(len(targets), k), cand.reshape(len(targets), k)
     delta = points[cand] - targets[:, None, :]
     sector = sector_of(delta[..., 0], delta[..., 1])
-    rows = np.arange(len(targets))
-    first = np.full((len(targets), SECTORS), k, dtype=np.intp)
-    for j in range(k - 1, -1, -1):       # candidates sorted by distance: keep the first per sector
-        first[rows, sector[:, j]] = j
-    filled = first < k
-    first[~filled] = 0
-    idx = cand[rows[:, None], first]
-    w = np.where(filled, 1.0 / np.maximum(dist[rows[:, None], first], 1e-300), 0.0)
+    in_sector = sector[:, :, None] == np.arange(SECTORS)          # (K, k, 8)
+    filled = in_sector.any(axis=1)                                # (K, 8)
+    first = in_sector.argmax(axis=1)                              # candidates sorted by distance
+    rows = np.arange(len(targets))[:, None]
+    idx = cand[rows, first]
+    w = np.where(filled, 1.0 / np.maximum(dist[rows, first], 1e-300), 0.0)
     # A target on a fiducial takes that fiducial's correction.
     on = dist[:, 0] <= on_fiducial_tolerance(points)
     idx[on] = cand[on, :1]
@@ -139,7 +137,8 @@ class SectorIndex:
                              np.empty(0, dtype=np.intp), np.empty(0, dtype=bool), np.empty(0))
         self._used = 0
         self._lock = threading.Lock()
-        self._padded = np.vstack([points, np.zeros((1, 2))])
+        self._padded = np.vstack([points, np.zeros((1, 2))])            # row J: padding
+        self._px, self._py = self._padded[:, 0].copy(), self._padded[:, 1].copy()
         self._on = on_fiducial_tolerance(points)
 
     def _cells_of(self, targets: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
@@ -272,20 +271,29 @@ class SectorIndex:
     def _fast_chunk(self, t: NDArray[np.float64], cells: "_Cells", row: NDArray[np.intp],
                     width: int) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.bool_]]:
         cand = cells.table[row, :, :width]                            # (K, 8, M), slot = sector
-        pts = self._padded[cand]
-        dx = pts[..., 0] - t[:, None, None, 0]                        # as sector_weights: F - T
-        dy = pts[..., 1] - t[:, None, None, 1]
+        dx = self._px[cand] - t[:, None, None, 0]                     # as sector_weights: F - T
+        dy = self._py[cand] - t[:, None, None, 1]
         dist = np.sqrt(dx * dx + dy * dy)                             # as the k-d tree computes it
-        mine = _in_sector(dx, dy, dist) & (cand < len(self.points))
-        dm = np.where(mine, dist, np.inf)
+        low = _LOW_X * dy - _LOW_Y * dx          # > 0: counter-clockwise of the lower boundary
+        high = _HIGH_X * dy - _HIGH_Y * dx       # < 0: clockwise of the upper boundary
+        valid = cand < len(self.points)
+        dm = np.where((low > 0) & (high < 0) & valid, dist, np.inf)
         first = dm.argmin(axis=2)
         best = np.take_along_axis(dm, first[..., None], axis=2)[..., 0]    # (K, 8)
         filled = best < np.inf
         rows = np.arange(len(t))
         near = best.argmin(axis=1)
-        tie = ((dm == best[..., None]).sum(axis=2) > 1) & filled
-        unsure = ((filled & ~(best < cells.limit[row][:, None])) | tie).any(axis=1)
-        unsure |= (best[rows, near] <= self._on) | ~filled.any(axis=1)
+        unsure = ((filled & ~(best < cells.limit[row][:, None])).any(axis=1)
+                  | (best[rows, near] <= self._on) | ~filled.any(axis=1))
+        # Only fiducials as near as a winner can change it: if one lies within 1e-9 of a sector
+        # boundary (there sector_of evaluates the formula) or two share the winner's distance,
+        # the general path decides.
+        k, s, m = np.nonzero(valid & (dist <= best[..., None]))
+        lo, hi, d = low[k, s, m], high[k, s, m], dist[k, s, m]
+        unsure[k[np.minimum(np.abs(lo), np.abs(hi)) <= _AMBIGUOUS * d]] = True
+        at = (lo > 0) & (hi < 0) & (d == best[k, s])
+        unsure |= np.bincount(k[at] * SECTORS + s[at], minlength=len(t) * SECTORS
+                              ).reshape(len(t), SECTORS).max(axis=1) > 1
         sel = np.take_along_axis(cand, first[..., None], axis=2)[..., 0].astype(np.intp)
         idx = np.where(filled, sel, sel[rows, near][:, None])
         w = np.where(filled, 1.0 / np.maximum(best, 1e-300), 0.0)
@@ -311,18 +319,3 @@ class _Cells(NamedTuple):
     width: NDArray[np.intp]
     safe: NDArray[np.bool_]
     limit: NDArray[np.float64]
-
-
-def _in_sector(dx: NDArray[np.float64], dy: NDArray[np.float64], dist: NDArray[np.float64]
-               ) -> NDArray[np.bool_]:
-    """Whether directions (K, 8, M) lie in the sector of their slot (axis 1), exactly as
-    :func:`sector_of` says: half-plane tests, and the formula within 1e-9 of a boundary."""
-    low = _LOW_X * dy - _LOW_Y * dx          # > 0: counter-clockwise of the lower boundary
-    high = _HIGH_X * dy - _HIGH_Y * dx       # < 0: clockwise of the upper boundary
-    margin = _AMBIGUOUS * dist
-    inside = (low > margin) & (high < -margin)
-    unsure = ~inside & (low >= -margin) & (high <= margin)
-    if unsure.any():
-        k, s, m = np.nonzero(unsure)
-        inside[k, s, m] = _sector_formula(dx[k, s, m], dy[k, s, m]) == s
-    return inside

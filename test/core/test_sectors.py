@@ -92,6 +92,17 @@ def test_exact_grid_with_ties_midpoints_and_targets_on_fiducials():
     assert_same_weights(pts, targets)
 
 
+def test_fiducials_on_sector_boundaries():
+    """Targets that see a fiducial exactly (to rounding) along a sector boundary, where the
+    classification needs the formula itself."""
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(0, 1, (200, 2))
+    ang = np.pi / 8 + np.pi / 4 * rng.integers(0, 8, 1500)
+    r = rng.uniform(0.01, 0.2, 1500)
+    targets = pts[rng.integers(0, 200, 1500)] - r[:, None] * np.c_[np.cos(ang), np.sin(ang)]
+    assert_same_weights(pts, targets)
+
+
 def test_small_batches_and_repeated_batches_agree():
     rng = np.random.default_rng(4)
     pts = rng.uniform(0, 1, (150, 2))
