@@ -23,9 +23,13 @@ target in C:
 
 Targets outside the grid, in cells where a list would be long, on a fiducial, with two fiducials at
 exactly the same distance in one sector (the rule then depends on the order of the neighbour
-query), or with an uncertain winner take the general path, :func:`sector_weights`. Every float
-that enters a weight (distance, sector) is computed as the general path computes it, so the
-weights are identical, not just close. Cells are prepared on first use and kept.
+query), with a fiducial within 1e-9 of a sector boundary, or with an uncertain winner take the
+general path, :func:`sector_weights`. Every float that enters a weight (distance, sector) is
+computed as the general path computes it, so the weights are identical, not just close.
+
+A cell is prepared the second time targets fall in it (in one batch or across batches; preparing
+costs about as much as 30 targets on the general path) and kept: targets that come back, as a
+cell's holes do, take the grid path from then on.
 """
 
 from __future__ import annotations
@@ -48,7 +52,7 @@ MAX_PER_SECTOR = 6
 #: Nearest fiducials of a cell centre examined when preparing the cell.
 CELL_NEIGHBOURS = 96
 #: Cells of the grid: about this many per fiducial, within the bounds below.
-CELLS_PER_FIDUCIAL = 32
+CELLS_PER_FIDUCIAL = 128
 MIN_CELLS, MAX_CELLS = 4096, 1 << 22
 #: A direction this close (relative) to a sector boundary is classified with atan2 itself.
 _AMBIGUOUS = 1e-9
@@ -132,12 +136,17 @@ class SectorIndex:
         # yet). Writers hold the lock; readers read _slot first, then _cells, which is replaced
         # whole, so any row a reader finds in _slot is in the arrays it then reads.
         self._slot = np.full(int(np.prod(self.n)), -1, dtype=np.int32)
-        self._index = np.int16 if len(points) < np.iinfo(np.int16).max else np.int32
+        self._hits = np.zeros(len(self._slot), dtype=np.uint8)    # targets seen, up to 2
+        self._index = np.int16 if len(points) + SECTORS <= np.iinfo(np.int16).max else np.int32
         self._cells = _Cells(np.empty((0, SECTORS, MAX_PER_SECTOR), dtype=self._index),
                              np.empty(0, dtype=np.intp), np.empty(0, dtype=bool), np.empty(0))
         self._used = 0
         self._lock = threading.Lock()
-        self._padded = np.vstack([points, np.zeros((1, 2))])            # row J: padding
+        # Rows J + s: padding of slot s, far behind sector s (never in it, never near its
+        # boundaries) as seen from anywhere near the fiducials.
+        behind = -1e3 * scale * np.c_[np.cos(np.arange(SECTORS) * np.pi / 4),
+                                      np.sin(np.arange(SECTORS) * np.pi / 4)]
+        self._padded = np.vstack([points, behind])
         self._px, self._py = self._padded[:, 0].copy(), self._padded[:, 1].copy()
         self._on = on_fiducial_tolerance(points)
 
@@ -221,7 +230,8 @@ class SectorIndex:
         count = np.bincount(key, minlength=n * SECTORS)
         pos = np.arange(len(key)) - (np.cumsum(count) - count)[key]
         fits = pos < MAX_PER_SECTOR
-        table = np.full((n * SECTORS, MAX_PER_SECTOR), j, dtype=self._index)
+        table = np.repeat(j + np.tile(np.arange(SECTORS), n), MAX_PER_SECTOR).reshape(
+            n * SECTORS, MAX_PER_SECTOR).astype(self._index)                  # padding J + s
         table[key[fits], pos[fits]] = cand[fits]
         count = count.reshape(n, SECTORS)
         safe = (certain | covered[:, None]).all(axis=1) & (count <= MAX_PER_SECTOR).all(axis=1)
@@ -234,10 +244,16 @@ class SectorIndex:
         slot = self._slot[cid]
         missing = inside & (slot < 0)
         if missing.any():
-            self._prepare(np.unique(cid[missing]))
-            slot = self._slot[cid]
+            # A cell is prepared the second time targets fall in it (this batch or an earlier
+            # one): preparing costs more than the general path for a single target.
+            ids, hits = np.unique(cid[missing], return_counts=True)
+            seen = self._hits[ids] + hits
+            self._hits[ids] = np.minimum(seen, 2)
+            if (seen >= 2).any():
+                self._prepare(ids[seen >= 2])
+                slot = self._slot[cid]
         cells = self._cells                       # after _slot: holds every row slot names
-        fast = np.flatnonzero(inside)
+        fast = np.flatnonzero(inside & (slot >= 0))
         fast = fast[cells.safe[slot[fast]]]
         general = np.ones(len(targets), dtype=bool)
         general[fast] = False
@@ -270,30 +286,24 @@ class SectorIndex:
 
     def _fast_chunk(self, t: NDArray[np.float64], cells: "_Cells", row: NDArray[np.intp],
                     width: int) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.bool_]]:
-        cand = cells.table[row, :, :width]                            # (K, 8, M), slot = sector
-        dx = self._px[cand] - t[:, None, None, 0]                     # as sector_weights: F - T
-        dy = self._py[cand] - t[:, None, None, 1]
+        cand = np.take(cells.table, row, axis=0)[:, :, :width]       # (K, 8, M), slot = sector
+        dx = np.take(self._px, cand) - t[:, None, None, 0]            # as sector_weights: F - T
+        dy = np.take(self._py, cand) - t[:, None, None, 1]
         dist = np.sqrt(dx * dx + dy * dy)                             # as the k-d tree computes it
         low = _LOW_X * dy - _LOW_Y * dx          # > 0: counter-clockwise of the lower boundary
         high = _HIGH_X * dy - _HIGH_Y * dx       # < 0: clockwise of the upper boundary
-        valid = cand < len(self.points)
-        dm = np.where((low > 0) & (high < 0) & valid, dist, np.inf)
+        dm = np.where((low > 0) & (high < 0), dist, np.inf)          # padding: never inside
         first = dm.argmin(axis=2)
         best = np.take_along_axis(dm, first[..., None], axis=2)[..., 0]    # (K, 8)
         filled = best < np.inf
         rows = np.arange(len(t))
         near = best.argmin(axis=1)
-        unsure = ((filled & ~(best < cells.limit[row][:, None])).any(axis=1)
-                  | (best[rows, near] <= self._on) | ~filled.any(axis=1))
-        # Only fiducials as near as a winner can change it: if one lies within 1e-9 of a sector
-        # boundary (there sector_of evaluates the formula) or two share the winner's distance,
-        # the general path decides.
-        k, s, m = np.nonzero(valid & (dist <= best[..., None]))
-        lo, hi, d = low[k, s, m], high[k, s, m], dist[k, s, m]
-        unsure[k[np.minimum(np.abs(lo), np.abs(hi)) <= _AMBIGUOUS * d]] = True
-        at = (lo > 0) & (hi < 0) & (d == best[k, s])
-        unsure |= np.bincount(k[at] * SECTORS + s[at], minlength=len(t) * SECTORS
-                              ).reshape(len(t), SECTORS).max(axis=1) > 1
+        tie = (dm == best[..., None]).sum(axis=2) > 1           # two fiducials at one distance
+        unsure = (filled & (tie | ~(best < cells.limit[row][:, None]))).any(axis=1)
+        unsure |= (best[rows, near] <= self._on) | ~filled.any(axis=1)
+        # A fiducial within 1e-9 of a sector boundary: sector_of would use the formula there,
+        # so the general path decides.
+        unsure |= (np.minimum(np.abs(low), np.abs(high)) <= _AMBIGUOUS * dist).any(axis=(1, 2))
         sel = np.take_along_axis(cand, first[..., None], axis=2)[..., 0].astype(np.intp)
         idx = np.where(filled, sel, sel[rows, near][:, None])
         w = np.where(filled, 1.0 / np.maximum(best, 1e-300), 0.0)
@@ -312,7 +322,7 @@ _PREP_CHUNK = 256
 
 
 class _Cells(NamedTuple):
-    """Prepared cells, one row each: candidate fiducials per sector (padded with J), the longest
+    """Prepared cells, one row each: candidate fiducials per sector (padded with J + s), the longest
     list, whether the grid decides the cell, and the distance a winner must stay below."""
 
     table: NDArray[np.integer]
