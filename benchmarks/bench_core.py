@@ -5,11 +5,20 @@
   with the normal matrix assembled from the pair blocks and Cholesky (``direct``), and a dense
   formulation (the J(J-1)/2 x dJ Jacobian and numpy lstsq) with the ratios; sigma_L excluded
   (timed separately), as the targets are about the solver.
+- model rebuild: ``build_model`` with its defaults (3D, iterative, paper) at J = 1,000 to 10,000,
+  against a floor in the same run (one O(J) rigid fit of the same fiducials), and what it is made
+  of (sigma_L0, the restoration, the interpolator's Delaunay triangulation and k-d tree).
+- target corrections, batched: ``RbcModel.correct`` (hull test, interpolation, both rigid maps) of
+  K = 10,000 targets per call against a floor in the same run, ``cKDTree.query(targets, k=8)`` on
+  the same fiducials (batched, same K), alternating, min and median per target and their ratios
+  (wall clock and thread CPU time); the first two calls after a build are shown apart (2D: the
+  second prepares the grid cells that targets fell in twice).
 - large J (``--large``): iterative for J up to 10,000 and closed-form up to 100,000.
 - one target correction in process (paper and kriging).
 
-Prints Markdown. Times are the minimum of repeated runs (wall clock, 1 BLAS thread unless
-``--threads``), on whatever machine runs it; the machine should otherwise be idle.
+Prints Markdown. Times are wall clock (1 BLAS thread unless ``--threads``), on whatever machine
+runs it; the machine should otherwise be idle, and ratios against a floor measured in the same
+run, alternating, are the figures to compare between machines.
 """
 
 from __future__ import annotations
@@ -23,9 +32,12 @@ if "--threads" not in sys.argv:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from scipy.spatial import cKDTree  # noqa: E402
 
+from rbc_registration.core.interpolation import PaperInterpolator  # noqa: E402
 from rbc_registration.core.mismatch import sigma_l  # noqa: E402
 from rbc_registration.core.model import ModelConfig, build_model  # noqa: E402
+from rbc_registration.core.registration import rigid_fit  # noqa: E402
 from rbc_registration.core.restoration import (  # noqa: E402
     dense_gauss_newton_step, gauss_newton_step, restore_rigid_body)
 
@@ -47,6 +59,37 @@ def best(fn, repeat: int, budget: float = 20.0) -> float:
         if time.perf_counter() - start > budget:
             break
     return min(times)
+
+
+def alternate(fns: dict, repeat: int, budget: float = 60.0) -> tuple[dict, dict]:
+    """Run the callables in turn, ``repeat`` rounds (fewer when over ``budget`` s). Returns the
+    wall-clock and the thread CPU times of each, in seconds (CPU time does not count the time the
+    thread waited for a core, so it is steadier on a shared machine)."""
+    wall = {name: [] for name in fns}
+    cpu = {name: [] for name in fns}
+    start = time.perf_counter()
+    for _ in range(repeat):
+        for name, fn in fns.items():
+            c, t = time.thread_time(), time.perf_counter()
+            fn()
+            wall[name].append(time.perf_counter() - t)
+            cpu[name].append(time.thread_time() - c)
+        if time.perf_counter() - start > budget:
+            break
+    return wall, cpu
+
+
+def grid_cell(dim: int, seed: int = 0):
+    """A-like (5 x 5 x 5 holes over 3 m x 3 m x 1.8 m) or RA-like (17 x 21 holes, 25 mm) cell,
+    destination = holes, working = rotated copy + smooth bias + noise (metres)."""
+    rng = np.random.default_rng(seed)
+    if dim == 3:
+        axes = [np.linspace(0, 3, 5), np.linspace(0, 3, 5), np.linspace(0, 1.8, 5)]
+    else:
+        axes = [np.arange(17) * 0.025, np.arange(21) * 0.025]
+    y = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, dim)
+    x = y[:, ::-1] + 2e-4 * np.sin(5.0 * y) + rng.normal(scale=5e-6, size=y.shape)
+    return x, y
 
 
 def two_steps(x, y, step):
@@ -103,6 +146,67 @@ def large_table(repeat: int) -> list[str]:
     return rows
 
 
+def rebuild_table(repeat: int) -> list[str]:
+    rows = ["| J | build_model (paper, 3D): min / median | CPU time: min / median | floor: one "
+            "rigid fit, min | sigma_L0 | restoration | interpolator (Delaunay + k-d tree) | "
+            "sigma_L1 and sigma_L2, on first access |", "|---|---|---|---|---|---|---|---|"]
+    for j in (1000, 5000, 10_000):
+        x, y = cell(j, 3)
+        wall, cpu = alternate({"build": lambda: build_model(x, y),
+                               "floor": lambda: rigid_fit(x, y)}, repeat)
+        res = restore_rigid_body(x, y)
+        parts, _ = alternate({"sigma0": lambda: sigma_l(x, y),
+                              "restore": lambda: restore_rigid_body(x, y),
+                              "interp": lambda: PaperInterpolator(x, res.corrections)},
+                             max(3, repeat // 2))
+        rest = []
+        for _ in range(max(3, repeat // 2)):
+            m = build_model(x, y)
+            t0 = time.perf_counter()
+            m.sigma_l
+            rest.append(time.perf_counter() - t0)
+        b, c = np.array(wall["build"]), np.array(cpu["build"])
+        rows.append(f"| {j} | {fmt(b.min())} / {fmt(float(np.median(b)))} | {fmt(c.min())} / "
+                    f"{fmt(float(np.median(c)))} | {fmt(min(wall['floor']))} | "
+                    f"{fmt(min(parts['sigma0']))} | {fmt(min(parts['restore']))} | "
+                    f"{fmt(min(parts['interp']))} | {fmt(min(rest))} |")
+        print(f"  rebuild J={j} done", file=sys.stderr)
+    return rows
+
+
+def batch_table(repeat: int, k: int = 10_000) -> list[str]:
+    rows = ["| cell | J | d | correct: min / median | floor (k = 8 query): min / median | "
+            "ratio, wall: min / median | ratio, CPU time: min / median | 1st call / 2nd call |",
+            "|---|---|---|---|---|---|---|---|"]
+    cases = [("grid A-like", *grid_cell(3)), ("random", *cell(125, 3)),
+             ("random", *cell(1000, 3)), ("grid RA-like", *grid_cell(2)),
+             ("random", *cell(277, 2)), ("random", *cell(1000, 2))]
+    for name, x, y in cases:
+        d = x.shape[1]
+        model = build_model(x, y, ModelConfig(dimension=d, sigma=1e-4))
+        rng = np.random.default_rng(1)
+        lo, hi = x.min(axis=0), x.max(axis=0)
+        targets = lo + (hi - lo) * rng.uniform(size=(k, d))
+        tree = cKDTree(model.interpolator.points)
+        cold = []
+        for _ in range(2):          # 2D: the second call prepares the grid cells hit twice
+            t0 = time.perf_counter()
+            model.correct(targets)
+            cold.append(time.perf_counter() - t0)
+        wall, cpu = alternate({"correct": lambda: model.correct(targets),
+                               "floor": lambda: tree.query(targets, k=8)}, repeat)
+        per = {key: {n: np.array(v) / k * 1e6 for n, v in t.items()}
+               for key, t in (("wall", wall), ("cpu", cpu))}
+        c, f = per["wall"]["correct"], per["wall"]["floor"]
+        cc, cf = per["cpu"]["correct"], per["cpu"]["floor"]
+        rows.append(f"| {name} | {len(x)} | {d} | {c.min():.2f} / {np.median(c):.2f} µs | "
+                    f"{f.min():.2f} / {np.median(f):.2f} µs | {c.min() / f.min():.2f} / "
+                    f"{np.median(c) / np.median(f):.2f} | {cc.min() / cf.min():.2f} / "
+                    f"{np.median(cc) / np.median(cf):.2f} | {fmt(cold[0])} / {fmt(cold[1])} |")
+        print(f"  batch {name} J={len(x)} {d}D done", file=sys.stderr)
+    return rows
+
+
 def correction_table(repeat: int) -> list[str]:
     rows = ["| interpolation | J | one target (model.correct) |", "|---|---|---|"]
     for method in ("paper", "kriging"):
@@ -125,6 +229,10 @@ def main() -> None:
           f"cores: {os.cpu_count()}\n")
     print("### Restoration (2 steps, sigma_L excluded)\n")
     print("\n".join(restoration_table(args.repeat)))
+    print("\n### Model rebuild (build_model defaults: 3D, iterative, paper)\n")
+    print("\n".join(rebuild_table(max(5, args.repeat // 3))))
+    print("\n### Target corrections, batched (K = 10,000 per call)\n")
+    print("\n".join(batch_table(args.repeat)))
     if args.large:
         print("\n### Large J\n")
         print("\n".join(large_table(args.repeat)))
