@@ -61,6 +61,25 @@ def best(fn, repeat: int, budget: float = 20.0) -> float:
     return min(times)
 
 
+def min_med(values, show=None) -> str:
+    """``min / median`` of times in seconds, each shown by ``show`` (default :func:`fmt`)."""
+    v = np.asarray(values)
+    show = show or fmt
+    return f"{show(v.min())} / {show(float(np.median(v)))}"
+
+
+def ratios(a, b) -> str:
+    """``min(a) / min(b)`` and ``median(a) / median(b)``."""
+    return f"{np.min(a) / np.min(b):.2f} / {np.median(a) / np.median(b):.2f}"
+
+
+def seconds(fn) -> float:
+    """Wall-clock time of one call."""
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
 def alternate(fns: dict, repeat: int, budget: float = 60.0) -> tuple[dict, dict]:
     """Run the callables in turn, ``repeat`` rounds (fewer when over ``budget`` s). Returns the
     wall-clock and the thread CPU times of each, in seconds (CPU time does not count the time the
@@ -159,17 +178,11 @@ def rebuild_table(repeat: int) -> list[str]:
                               "restore": lambda: restore_rigid_body(x, y),
                               "interp": lambda: PaperInterpolator(x, res.corrections)},
                              max(3, repeat // 2))
-        rest = []
-        for _ in range(max(3, repeat // 2)):
-            m = build_model(x, y)
-            t0 = time.perf_counter()
-            m.sigma_l
-            rest.append(time.perf_counter() - t0)
-        b, c = np.array(wall["build"]), np.array(cpu["build"])
-        rows.append(f"| {j} | {fmt(b.min())} / {fmt(float(np.median(b)))} | {fmt(c.min())} / "
-                    f"{fmt(float(np.median(c)))} | {fmt(min(wall['floor']))} | "
-                    f"{fmt(min(parts['sigma0']))} | {fmt(min(parts['restore']))} | "
-                    f"{fmt(min(parts['interp']))} | {fmt(min(rest))} |")
+        rest = [seconds(lambda m=build_model(x, y): m.sigma_l) for _ in range(max(3, repeat // 2))]
+        cols = [str(j), min_med(wall["build"]), min_med(cpu["build"]), fmt(min(wall["floor"])),
+                fmt(min(parts["sigma0"])), fmt(min(parts["restore"])), fmt(min(parts["interp"])),
+                fmt(min(rest))]
+        rows.append("| " + " | ".join(cols) + " |")
         print(f"  rebuild J={j} done", file=sys.stderr)
     return rows
 
@@ -188,21 +201,17 @@ def batch_table(repeat: int, k: int = 10_000) -> list[str]:
         lo, hi = x.min(axis=0), x.max(axis=0)
         targets = lo + (hi - lo) * rng.uniform(size=(k, d))
         tree = cKDTree(model.interpolator.points)
-        cold = []
-        for _ in range(2):          # 2D: the second call prepares the grid cells hit twice
-            t0 = time.perf_counter()
-            model.correct(targets)
-            cold.append(time.perf_counter() - t0)
+        # 2D: the second call prepares the grid cells that targets fell in twice.
+        cold = [seconds(lambda: model.correct(targets)) for _ in range(2)]
         wall, cpu = alternate({"correct": lambda: model.correct(targets),
                                "floor": lambda: tree.query(targets, k=8)}, repeat)
-        per = {key: {n: np.array(v) / k * 1e6 for n, v in t.items()}
-               for key, t in (("wall", wall), ("cpu", cpu))}
-        c, f = per["wall"]["correct"], per["wall"]["floor"]
-        cc, cf = per["cpu"]["correct"], per["cpu"]["floor"]
-        rows.append(f"| {name} | {len(x)} | {d} | {c.min():.2f} / {np.median(c):.2f} µs | "
-                    f"{f.min():.2f} / {np.median(f):.2f} µs | {c.min() / f.min():.2f} / "
-                    f"{np.median(c) / np.median(f):.2f} | {cc.min() / cf.min():.2f} / "
-                    f"{np.median(cc) / np.median(cf):.2f} | {fmt(cold[0])} / {fmt(cold[1])} |")
+        def us(v: float) -> str:                      # per target
+            return f"{v * 1e6 / k:.2f} µs"
+
+        cols = [name, str(len(x)), str(d), min_med(wall["correct"], us),
+                min_med(wall["floor"], us), ratios(wall["correct"], wall["floor"]),
+                ratios(cpu["correct"], cpu["floor"]), f"{fmt(cold[0])} / {fmt(cold[1])}"]
+        rows.append("| " + " | ".join(cols) + " |")
         print(f"  batch {name} J={len(x)} {d}D done", file=sys.stderr)
     return rows
 

@@ -27,8 +27,8 @@ query), with a fiducial within 1e-9 of a sector boundary, or with an uncertain w
 general path, :func:`sector_weights`. Every float that enters a weight (distance, sector) is
 computed as the general path computes it, so the weights are identical, not just close.
 
-A cell is prepared the second time targets fall in it (in one batch or across batches; preparing
-costs about as much as 30 targets on the general path) and kept: targets that come back, as a
+A cell is prepared the second time targets fall in it (in one batch or across batches: preparing
+a cell costs about as much as 3 targets on the general path) and kept: targets that come back, as a
 cell's holes do, take the grid path from then on.
 """
 
