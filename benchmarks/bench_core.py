@@ -178,7 +178,8 @@ def rebuild_table(repeat: int) -> list[str]:
                               "restore": lambda: restore_rigid_body(x, y),
                               "interp": lambda: PaperInterpolator(x, res.corrections)},
                              max(3, repeat // 2))
-        rest = [seconds(lambda m=build_model(x, y): m.sigma_l) for _ in range(max(3, repeat // 2))]
+        models = [build_model(x, y) for _ in range(max(3, repeat // 2))]
+        rest = [seconds(lambda: m.sigma_l) for m in models]
         cols = [str(j), min_med(wall["build"]), min_med(cpu["build"]), fmt(min(wall["floor"])),
                 fmt(min(parts["sigma0"])), fmt(min(parts["restore"])), fmt(min(parts["interp"])),
                 fmt(min(rest))]

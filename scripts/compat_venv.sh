@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up (or update) the Ubuntu 24.04 compatibility venv at <repo>/.venv-ubuntu2404, idempotently:
-# numpy, scipy, matplotlib, rosbags, pytest and hypothesis (and their dependencies) pinned by
+# numpy, scipy, matplotlib, rosbags, pyyaml, pytest and hypothesis (and their dependencies) pinned by
 # constraints-ubuntu2404.txt to Ubuntu 24.04's versions, and this package installed from a copy
 # of the source tree with `pip install --no-deps` (a real install, not editable). No ROS packages:
 # the pure test suite runs in it (.ci/run). A stamp keyed on the pins, this script and every
@@ -14,7 +14,7 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="${RBC_COMPAT_VENV:-$ROOT/.venv-ubuntu2404}"
 PYTHON="${RBC_PYTHON:-python3.11}"
 PINS="$ROOT/constraints-ubuntu2404.txt"
-PACKAGES=(numpy scipy matplotlib rosbags pytest hypothesis)
+PACKAGES=(numpy scipy matplotlib rosbags pyyaml pytest hypothesis)
 STAMP="$VENV/.rbc-compat-stamp"
 LOG="$VENV/.rbc-compat.log"
 

@@ -4,8 +4,13 @@ as rosdep does) sees the two packages of this repository and never vendor/tf2_ms
 import os
 import re
 
-from catkin_pkg.package import parse_package
-from catkin_pkg.packages import find_packages
+import pytest
+
+# catkin_pkg is a ROS build tool: not in the Ubuntu 24.04 venv of .ci/run (no ROS packages).
+pytest.importorskip("catkin_pkg", reason="catkin_pkg (ROS build tooling) is not installed")
+
+from catkin_pkg.package import parse_package  # noqa: E402
+from catkin_pkg.packages import find_packages  # noqa: E402
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -26,7 +26,8 @@ class Interpolated(NamedTuple):
 
     :ivar correction: eps(T), shape (K, d), working frame (eq. 5).
     :ivar inside_hull: (K,) whether each target is inside the fiducials' convex hull.
-    :ivar expected_error: (K,) 1-sigma uncertainty of eps(T) per axis; NaN when the method gives none.
+    :ivar expected_error: (K,) 1-sigma uncertainty of eps(T) per axis; NaN when the method gives
+        none.
     """
 
     correction: NDArray[np.float64]
@@ -129,7 +130,8 @@ class PaperInterpolator:
         dist, idx = self.tree.query(t, k=min(k, len(self.points)))
         dist, idx = np.atleast_2d(dist), np.atleast_2d(idx)
         hit = dist[:, :1] <= on_fiducial_tolerance(self.points)
-        w = np.where(hit, (np.arange(idx.shape[1]) == 0).astype(float), 1.0 / np.maximum(dist, 1e-300))
+        w = np.where(hit, (np.arange(idx.shape[1]) == 0).astype(float),
+                     1.0 / np.maximum(dist, 1e-300))
         return idx, w / w.sum(axis=1, keepdims=True)
 
     def _tetrahedra(self, t: NDArray[np.float64], simplex: NDArray[np.intp]
@@ -149,7 +151,7 @@ class PaperInterpolator:
         return idx, w
 
     def _sectors(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """The 8-sector rule (:mod:`.sectors`); batches use the prepared grid, built on first use."""
+        """The 8-sector rule (:mod:`.sectors`); batches use its grid, built on first use."""
         if len(t) < GRID_MIN_TARGETS:
             return sector_weights(self.tree, self.points, t)
         if self._sector_index is None:

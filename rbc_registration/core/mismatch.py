@@ -3,8 +3,8 @@ histograms of L.
 
 sigma_L is an O(J^2) pass over the pairs. Beyond :data:`ONE_BLOCK_PAIRS` pairs it is computed in
 blocks of :data:`ROWS_PER_BLOCK` rows of the pair matrix, so its temporary memory is O(J) (about
-``3 ROWS_PER_BLOCK J`` floats), and :func:`sigma_l_stages` evaluates several working-frame sets against
-one destination set in the same pass, computing the destination distances once.
+``3 ROWS_PER_BLOCK J`` floats), and :func:`sigma_l_stages` evaluates several working-frame sets
+against one destination set in the same pass, computing the destination distances once.
 """
 
 from __future__ import annotations
@@ -92,22 +92,26 @@ def sigma_l_stages(stages: Sequence[ArrayLike], destination: ArrayLike) -> tuple
     buf_y, buf_x = np.empty(rows * j), np.empty(rows * j)
     for a in range(0, j - 1, rows):
         b = min(j, a + rows)
-        # Pairs (i, k) with a <= i < b and k > i: those with k >= b, then those inside the block.
-        n_cross = (b - a) * (j - b)
         tri = inner if b - a == rows else np.triu_indices(b - a, k=1)
-        n = n_cross + len(tri[0])
-
-        def fill(points: NDArray[np.float64], out: NDArray[np.float64]) -> None:
-            cdist(points[a:b], points[b:], out=out[:n_cross].reshape(b - a, j - b))
-            out[n_cross:n] = cdist(points[a:b], points[a:b])[tri]
-
-        fill(y, buf_y)
+        n = _block_distances(y, a, b, tri, buf_y)
         for x, m in zip(xs, acc):
-            fill(x, buf_x)
+            _block_distances(x, a, b, tri, buf_x)
             chunk = buf_x[:n]
             chunk -= buf_y[:n]                      # L_ij, eq. 1
             m.add(chunk)
     return tuple(m.std() for m in acc)
+
+
+def _block_distances(points: NDArray[np.float64], a: int, b: int,
+                     tri: tuple[NDArray[np.intp], NDArray[np.intp]], out: NDArray[np.float64]
+                     ) -> int:
+    """Write |P_i - P_k| for the pairs a <= i < b, k > i into ``out``: those with k >= b, then
+    those inside the block (``tri``: its upper triangle); return how many."""
+    n_cross = (b - a) * (len(points) - b)
+    cdist(points[a:b], points[b:], out=out[:n_cross].reshape(b - a, len(points) - b))
+    n = n_cross + len(tri[0])
+    out[n_cross:n] = cdist(points[a:b], points[a:b])[tri]
+    return n
 
 
 def sigma_l(working: ArrayLike, destination: ArrayLike) -> float:

@@ -116,7 +116,8 @@ class RestorationResult:
 def rigid_motion_basis(points: NDArray[np.float64]) -> NDArray[np.float64]:
     """Orthonormal basis (dJ, m) of the infinitesimal rigid motions of ``points`` (J, d).
 
-    m = 3 in 2D (2 translations, 1 rotation), 6 in 3D. Vectors are flattened row-major (x1, y1, ...).
+    m = 3 in 2D (2 translations, 1 rotation), 6 in 3D. Vectors are flattened row-major
+    (x1, y1, ...).
     """
     j, d = points.shape
     c = points - points.mean(axis=0)

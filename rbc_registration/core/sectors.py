@@ -130,7 +130,7 @@ class SectorIndex:
         scale = float(np.abs(points).max() + extent.max())
         self.tol = 1e-9 * scale            # slack for rounding in every bound below
         self.near = 1e-5 * scale           # closer than this, a direction is not trusted
-        self.half = self.h / 2 + self.tol  # half side of a cell, rounding of the cell index included
+        self.half = self.h / 2 + self.tol  # half a cell's side, with rounding of the cell index
         self.rho = self.half * math.sqrt(2)
         # Prepared cells: a row each in the arrays of _cells, _slot maps a cell to its row (-1: not
         # yet). Writers hold the lock; readers read _slot first, then _cells, which is replaced
@@ -162,7 +162,8 @@ class SectorIndex:
             ids = ids[self._slot[ids] < 0]
             if not ids.size:
                 return
-            parts = [self._cell_data(ids[a:a + _PREP_CHUNK]) for a in range(0, len(ids), _PREP_CHUNK)]
+            parts = [self._cell_data(ids[a:a + _PREP_CHUNK])
+                     for a in range(0, len(ids), _PREP_CHUNK)]
             new = _Cells(*(np.concatenate(col) for col in zip(*parts)))
             old, used = self._cells, self._used
             if used + len(ids) > len(old.safe):                   # grow, amortised
