@@ -95,6 +95,10 @@ def sector_weights(tree: cKDTree, points: NDArray[np.float64], targets: NDArray[
     """The sector rule (module docstring) for targets (K, 2): fiducial indices and normalised
     weights, both (K, 8), slot k for sector k; empty sectors have weight 0 (and, as index, the
     nearest fiducial)."""
+    if len(targets) > _CHUNK:            # bounded temporaries: (K, 64, 8) per chunk
+        parts = [sector_weights(tree, points, targets[a:a + _CHUNK])
+                 for a in range(0, len(targets), _CHUNK)]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     k = min(SECTOR_CANDIDATES, len(points))
     dist, cand = tree.query(targets, k=k)
     dist, cand = dist.reshape(len(targets), k), cand.reshape(len(targets), k)
@@ -317,7 +321,7 @@ class SectorIndex:
 _LOW = np.arange(SECTORS) * (np.pi / 4) - np.pi / 8
 _LOW_X, _LOW_Y = np.cos(_LOW)[:, None], np.sin(_LOW)[:, None]
 _HIGH_X, _HIGH_Y = np.cos(_LOW + np.pi / 4)[:, None], np.sin(_LOW + np.pi / 4)[:, None]
-#: Targets x list length per chunk of the grid path, and cells prepared at once.
+#: Targets (x list length on the grid path) per chunk, and cells prepared at once.
 _CHUNK = 4096
 _PREP_CHUNK = 256
 
