@@ -54,4 +54,7 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int) -> Mo
                             repeat_statistics=fiducials.repeat_stats)
     except ValueError as exc:
         return ModelState(None, fiducials, settings, f"model not built: {exc}", stamp_ns)
+    # The status and the snapshot report every sigma_L (computed on first access, O(J^2)): here,
+    # in the recompute thread, rather than on the executor at the first status.
+    _ = model.restoration.sigma_l
     return ModelState(model, fiducials, settings, "", stamp_ns)

@@ -126,3 +126,16 @@ def test_too_few_and_degenerate_fiducials():
         restore_rigid_body(line, line)
     with pytest.raises(ValueError, match="NaN"):
         restore_rigid_body(np.full((5, 3), np.nan), np.zeros((5, 3)))
+
+
+def test_sigma_l_is_computed_on_first_access_only():
+    """sigma_L0 alone for rho, the other stages when first read, the same values as directly."""
+    x, y = cell(3, 30)
+    res = restore_rigid_body(x, y)
+    assert np.isnan(res.sigma_l_cached).all()            # nothing computed by the restoration
+    assert res.sigma_l0 == sigma_l(x, y)
+    assert np.isnan(res.sigma_l_cached[1:]).all() and res.sigma_l_cached[0] == res.sigma_l0
+    stages = res.stages()
+    assert res.sigma_l == tuple(sigma_l(p, y) for p in stages)
+    assert res.sigma_l_cached == res.sigma_l
+    assert np.isnan(restore_rigid_body(x, y, compute_sigma_l=False).sigma_l).all()

@@ -31,3 +31,6 @@ def test_build_state_builds_a_model():
     assert state.error == "" and state.model.ids == acc.fiducial_set().ids
     assert state.model.sigma_source == "given"
     assert model_config(Settings.from_mapping({})).sigma is None
+    # every sigma_L is computed in the building (recompute) thread, not at the first status
+    cached = state.model.restoration.sigma_l_cached
+    assert len(cached) == 3 and np.isfinite(cached).all()
