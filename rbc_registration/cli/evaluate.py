@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .options import add_model_options
+from .options import add_model_options, refuse_outputs_onto_inputs
 
 #: The input topics that can be named, with what they carry.
 TOPIC_OPTIONS = (("fiducial", "fiducial_pairs", "FiducialPair"),
@@ -82,11 +82,15 @@ def run(args: argparse.Namespace) -> int:
     """Bag -> the node's accumulation and model -> report (stdout, JSON, directory)."""
     from ..io.bag.reader import read_bag
     from ..io.csv_io import read_targets
-    from ..io.evaluation import evaluate_contents, print_summary, write_report_dir
+    from ..io.evaluation import (REPORT_FILES, evaluate_contents, print_summary,
+                                 write_report_dir)
     from ..io.report import write_json
     from ..pipeline.offline import infer_dimension, settings_for
     from ..pipeline.targets import Targets
 
+    inputs = [("bag", args.bag), ("--targets", args.targets)]
+    refuse_outputs_onto_inputs([("--json", args.json)], inputs)
+    refuse_outputs_onto_inputs([("--out", args.out)], inputs, REPORT_FILES)
     params = parse_params(args.param)
     for key, value in (("sigma", args.sigma), ("restoration", args.restoration),
                        ("restoration_steps", args.steps), ("interpolation", args.interpolation)):

@@ -8,6 +8,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .options import refuse_outputs_onto_inputs
+
 
 def add_parser(sub: Any) -> None:
     """Add ``export`` to the subparsers of ``rbc-registration``."""
@@ -37,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
                                   write_calibration)
     from ..io.calibration_model import calibration_from_document
 
+    refuse_outputs_onto_inputs([("--out", args.out)], [("source", args.source)])
     where = str(args.source)
     try:
         text = args.source.read_text(encoding="utf-8")

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Callable, Optional
+import os
+import sys
+from pathlib import Path
+from typing import Callable, Iterable, Optional, Sequence
 
 from ..core.constants import DIMENSIONS, INTERPOLATIONS, RESTORATIONS
 
@@ -18,6 +21,22 @@ def positive(text: str) -> float:
     if not math.isfinite(value) or value <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
     return value
+
+
+def non_negative(text: str) -> float:
+    """A finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 and finite, got {text!r}")
+    return value
+
+
+def warn(command: str, text: str) -> None:
+    """One warning line on stderr, ``rbc-registration COMMAND: warning: TEXT``."""
+    print(f"rbc-registration {command}: warning: {text}", file=sys.stderr)
 
 
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:
@@ -45,3 +64,48 @@ def add_model_options(p: argparse.ArgumentParser, dim_help: str, sigma_help: str
     p.add_argument("--steps", type=int, default=steps, help="iterative steps (default 2)")
     p.add_argument("--interpolation", choices=INTERPOLATIONS,
                    default=INTERPOLATIONS[0] if defaults else None)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (symlinks, hard links, relative spellings)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:         # one of them does not exist (yet)
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _with_children(path: Path) -> Iterable[Path]:
+    """The path and, for a directory (a bag), the files directly inside it."""
+    yield path
+    if path.is_dir():
+        try:
+            yield from sorted(path.iterdir())[:1000]
+        except OSError:
+            pass
+
+
+def refuse_outputs_onto_inputs(outputs: Sequence[tuple[str, Optional[Path]]],
+                               inputs: Sequence[tuple[str, Optional[Path]]],
+                               directory_files: Sequence[str] = ()) -> None:
+    """Refuse, before anything is written, an output that is one of the inputs.
+
+    :param outputs: ``(option, path)`` of every output (``None``: not given).
+    :param inputs: ``(what, path)`` of every input (``None``: not given); a directory input (a
+        bag) counts with the files in it.
+    :param directory_files: names of the files written into an output directory (``--out DIR``
+        of ``evaluate``): each of them is an output too.
+    :raises ValueError: naming the option, the output and the input it would overwrite.
+    """
+    for option, out in outputs:
+        if out is None:
+            continue
+        candidates = [out] + [out / name for name in directory_files]
+        for what, given in inputs:
+            if given is None:
+                continue
+            for src in _with_children(given):
+                for dst in candidates:
+                    if _same_file(dst, src):
+                        same = "" if dst == out else f" (it would write {dst})"
+                        raise ValueError(f"{option} {out} is the input {what} {src}{same}: "
+                                         "refusing to overwrite an input")

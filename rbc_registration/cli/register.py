@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
-from .options import add_model_options, name_list
+from .options import (add_model_options, name_list, non_negative, refuse_outputs_onto_inputs,
+                      warn)
 
 if TYPE_CHECKING:   # imported when the subcommand runs (a fast --help)
     from ..core.model import ModelConfig
@@ -26,6 +27,11 @@ def add_parser(sub: Any) -> None:
                      help="fit the uncorrected registration to these fiducial ids only")
     reg.add_argument("--corrected-fit", type=ids, metavar="IDS",
                      help="fit the corrected registration to these fiducial ids only")
+    reg.add_argument("--outlier-distance", type=non_negative, metavar="D",
+                     help="a repeat farther than D (the file's unit) from the mean of its id's "
+                          "earlier rows: in the destination frame the file is refused (conflict), "
+                          "in the working frame the row is ignored with a warning (the node's "
+                          "outlier_distance); 0 = off (default: 0.25 x the fiducial spacing)")
     reg.add_argument("--unit", default="mm", help="unit of the file, used as a label (default mm)")
     reg.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
     reg.set_defaults(func=run)
@@ -60,7 +66,11 @@ def run(args: argparse.Namespace) -> int:
     from ..io.csv_io import read_fiducials, read_targets
     from ..io.report import format_report, model_report, write_json
 
-    fid = read_fiducials(args.fiducials, args.dim)
+    refuse_outputs_onto_inputs([("--json", args.json)], [("fiducials", args.fiducials),
+                                                          ("--targets", args.targets)])
+    fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance)
+    for note in fid.notes:
+        warn("register", note)
     cfg = model_config(args, fid.dimension, fid.ids)
     model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
                         working_repeats=fid.working_repeats)

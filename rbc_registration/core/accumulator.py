@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike
 from .noise import RepeatStats
 from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSet, Measurement,
                       Record, RejectedMeasurement, quote)
+from .repeats import repeat_outlier
 from .validation import MAX_ABS_COORDINATE
 
 __all__ = ["AUTO_ID_PREFIX", "MAX_ID_LENGTH", "REJECT_REASONS", "EnabledChange",
@@ -201,12 +202,9 @@ class FiducialAccumulator:
         if fiducial is not None and self.outlier_distance > 0:
             for name, point, mean in (("working", w, fiducial.mean_w()),
                                       ("destination", d, fiducial.mean_d())):
-                dist = math.dist(point, mean)
-                if dist > self.outlier_distance:
-                    raise RejectedMeasurement(
-                        "outlier", f"fiducial {fid!r}: {name} point is {dist:.6g} from the mean "
-                                   f"of its {fiducial.n} earlier repeat(s), more than "
-                                   f"outlier_distance {self.outlier_distance:g}")
+                far = repeat_outlier(fid, name, point, mean, fiducial.n, self.outlier_distance)
+                if far:
+                    raise RejectedMeasurement("outlier", far)
         return Measurement(fid, w, d, stamp, auto)
 
     def _check_age(self, stamp: float, now: float) -> None:

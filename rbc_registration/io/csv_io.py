@@ -18,12 +18,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..core.constants import DIMENSIONS
+from ..core.repeats import repeat_outlier, typical_spacing
 from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.targets import mean_by_id
 
 PathLike = Union[str, Path]
-#: Repeats of one id whose destination points differ by more than this fraction of the smallest
-#: distance between distinct fiducials are taken as a conflict (two different points, one id).
+#: A repeat of one id farther than this fraction of the typical fiducial spacing from the mean of
+#: the id's earlier rows: a conflict in the destination frame (two different points, one id), an
+#: outlier in the working frame (the node's ``outlier_distance`` rule, relative to the spacing).
 CONFLICT_FRACTION = 0.25
 
 
@@ -42,6 +44,8 @@ class FiducialTable:
     working_repeats: tuple[NDArray[np.float64], ...]
     destination_repeats: tuple[NDArray[np.float64], ...]
     dimension: int
+    #: One line per row that was ignored (a working-frame repeat far from its siblings).
+    notes: tuple[str, ...] = ()
 
     @property
     def working(self) -> NDArray[np.float64]:
@@ -114,50 +118,81 @@ def _dimension(p: PathLike, header: list[str], prefixes: list[str], dim: Optiona
     return dim
 
 
-def read_fiducials(path: PathLike, dim: Optional[int] = None) -> FiducialTable:
+def read_fiducials(path: PathLike, dim: Optional[int] = None,
+                   outlier_distance: Optional[float] = None) -> FiducialTable:
     """Read FIDUCIALS.csv (module docstring).
+
+    Repeats of an id are checked in file order with the node's rule
+    (:func:`~rbc_registration.core.repeats.repeat_outlier`): a row whose destination point is
+    farther than the limit from the mean of the id's earlier rows is a conflict (two points, one
+    id: the file is refused); a row whose working point is that far is ignored, with a note (the
+    node rejects such a measurement and keeps the others).
 
     :param path: the file.
     :param dim: 2 or 3; ``None``: 3 when ``wz`` and ``dz`` exist, else 2. With 2, z is ignored.
+    :param outlier_distance: the limit in the file's unit; 0 switches the checks off; ``None``:
+        ``CONFLICT_FRACTION`` x the typical fiducial spacing of each frame
+        (:func:`~rbc_registration.core.repeats.typical_spacing` of the ids' first rows, so the
+        ids under test and coinciding ids do not set it).
     :raises CsvError: naming the file, row and column of the first problem, including ids whose
         repeated destination points conflict.
     """
     header, rows = _read_rows(path, ["id", "wx", "wy", "dx", "dy"])
     d = _dimension(path, header, ["w", "d"], dim)
     axes = "xyz"[:d]
-    groups: dict[str, tuple[list, list, int]] = {}
+    groups: dict[str, list[tuple[int, list[float], list[float]]]] = {}
     for line, row in enumerate(rows, start=2):
         fid = row.get("id") or ""
         if not fid:
             raise CsvError(f"{path}: row {line}: column id is empty")
         w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
         t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes]
-        groups.setdefault(fid, ([], [], line))
-        groups[fid][0].append(w)
-        groups[fid][1].append(t)
-    ids = tuple(groups)
-    work = tuple(np.array(g[0]) for g in groups.values())
-    dest = tuple(np.array(g[1]) for g in groups.values())
-    _check_conflicts(path, ids, dest, [g[2] for g in groups.values()])
-    return FiducialTable(ids, work, dest, d)
+        groups.setdefault(fid, []).append((line, w, t))
+    limits = _repeat_limits(groups, outlier_distance)
+    notes: list[str] = []
+    work, dest = [], []
+    for fid, group in groups.items():
+        w, t = _checked_repeats(path, fid, group, limits, notes)
+        work.append(np.array(w))
+        dest.append(np.array(t))
+    return FiducialTable(tuple(groups), tuple(work), tuple(dest), d, tuple(notes))
 
 
-def _check_conflicts(path: PathLike, ids: tuple[str, ...], dest: tuple[NDArray[np.float64], ...],
-                     first_lines: list[int]) -> None:
-    means = np.array([g.mean(axis=0) for g in dest])
-    if len(means) < 2:
-        return
-    from scipy.spatial import cKDTree
-    dist, _ = cKDTree(means).query(means, k=2)
-    spacing = float(np.min(dist[:, 1]))
-    for fid, group, line in zip(ids, dest, first_lines):
-        if len(group) < 2:
-            continue
-        spread = float(np.max(np.linalg.norm(group - group.mean(axis=0), axis=1)))
-        if spacing > 0 and spread > CONFLICT_FRACTION * spacing:
-            raise CsvError(f"{path}: id {fid!r} (first at row {line}) has conflicting destination "
-                           f"points: its repeats spread {spread:.6g}, more than "
-                           f"{CONFLICT_FRACTION:g} x the fiducial spacing {spacing:.6g}")
+def _repeat_limits(groups: dict[str, list[tuple[int, list[float], list[float]]]],
+                   outlier_distance: Optional[float]) -> tuple[tuple[float, str], ...]:
+    """(limit, how it is named) for the working and the destination frame."""
+    if outlier_distance is not None:
+        return ((float(outlier_distance), "outlier_distance"),) * 2
+    out = []
+    for k in (1, 2):
+        spacing = typical_spacing([g[0][k] for g in groups.values()])
+        out.append((CONFLICT_FRACTION * spacing,
+                    f"{CONFLICT_FRACTION:g} x the fiducial spacing {spacing:.6g} ="))
+    return tuple(out)
+
+
+def _checked_repeats(path: PathLike, fid: str, group: list[tuple[int, list[float], list[float]]],
+                     limits: tuple[tuple[float, str], ...], notes: list[str]
+                     ) -> tuple[list[list[float]], list[list[float]]]:
+    """The rows of one id that pass the repeat rule; raises on a destination conflict."""
+    (w_limit, w_name), (d_limit, d_name) = limits
+    work: list[list[float]] = []
+    dest: list[list[float]] = []
+    for line, w, t in group:
+        n = len(work)
+        if n:
+            far = repeat_outlier(fid, "destination", t, np.mean(dest, axis=0), n, d_limit, d_name)
+            if far:
+                raise CsvError(f"{path}: id {fid!r} (first at row {group[0][0]}) has conflicting "
+                               f"destination points: row {line}: {far}")
+            far = repeat_outlier(fid, "working", w, np.mean(work, axis=0), n, w_limit, w_name)
+            if far:
+                notes.append(f"{path}: row {line}: {far}: row ignored (as the node rejects an "
+                             "outlier)")
+                continue
+        work.append(w)
+        dest.append(t)
+    return work, dest
 
 
 def read_targets(path: PathLike, dim: int) -> TargetTable:

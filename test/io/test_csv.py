@@ -37,7 +37,7 @@ def test_2d_files_and_dim_override(tmp_path):
 
 def test_round_trip(tmp_path):
     rng = np.random.default_rng(0)
-    reps = [rng.normal(size=(3, 3)) for _ in range(5)]
+    reps = [10 * k + 0.01 * rng.normal(size=(3, 3)) for k in range(5)]  # repeats of one point
     dest = [rng.normal(size=(1, 3)) + 10 * k for k in range(5)]
     p = tmp_path / "rt.csv"
     write_fiducials(p, [f"F{k}" for k in range(5)], reps, dest)
@@ -95,3 +95,48 @@ def test_dim3_needs_z(tmp_path):
 def test_bad_target_files(tmp_path, text, message):
     with pytest.raises(CsvError, match=message):
         read_targets(write(tmp_path, text), 3)
+
+
+# -- issue 11: conflicting repeats however the ids are laid out; working-frame outliers ----------
+SPREAD = "b,1,0,0,11,0,0\nc,0,1,0,10,1,0\nd,0,0,1,10,0,1\n"
+
+
+@pytest.mark.parametrize("text", [
+    # two other ids at one destination: the smallest spacing is 0 (switched the check off)
+    pytest.param(H3 + "a,0,0,0,10,0,0\na,0,0,0,12,0,0\n" + SPREAD + "e,1,1,1,11,1,1\n"
+                 "f,1.0,1,1,11,1,1\n", id="two-other-ids-coincide"),
+    # the conflicting id's mean lands on another fiducial (spacing 0 again)
+    pytest.param(H3 + "a,0,0,0,10,0,0\na,0,0,0,12,0,0\n" + SPREAD + "e,1,0,0,11,0,0\n",
+                 id="mean-on-another-id"),
+    # the same rows, the conflicting id last and the coinciding ids first
+    pytest.param(H3 + "e,1,0,0,11,0,0\n" + SPREAD + "a,0,0,0,12,0,0\na,0,0,0,10,0,0\n",
+                 id="reordered"),
+    # every id repeated, one of them conflicting: the spacing is not taken from the means
+    pytest.param(H3 + "".join(f"{i},{x},0,0,{x},0,0\n{i},{x},0,0,{x},0,0\n"
+                              for i, x in zip("bcd", (10, 20, 30)))
+                 + "a,0,0,0,0,0,0\na,0,0,0,0,9,0\nz,0,1,1,5,5,5\n", id="all-repeated"),
+])
+def test_conflicting_repeats_are_refused_whatever_the_id_layout(tmp_path, text):
+    with pytest.raises(CsvError, match=r"id 'a' .*row \d+.*destination point is [\d.]+ from"):
+        read_fiducials(write(tmp_path, text))
+
+
+def test_coinciding_ids_without_a_conflict_are_accepted(tmp_path):
+    t = read_fiducials(write(tmp_path, GOOD + "e,1,0,0,11,0,0\n" + "a,0.001,0,0,10,0,0.0001\n"))
+    assert t.ids == ("a", "b", "c", "d", "e") and len(t.working_repeats[0]) == 3
+    assert t.notes == ()
+
+
+def test_a_working_repeat_far_from_its_siblings_is_dropped_with_one_line(tmp_path):
+    text = (H3 + "a,0,0,0,10,0,0\na,0.001,0,0,10,0,0\na,0.6,0,0,10,0,0\na,0.002,0,0,10,0,0\n"
+            + SPREAD)
+    t = read_fiducials(write(tmp_path, text))
+    assert len(t.notes) == 1 and "\n" not in t.notes[0]
+    note = t.notes[0]
+    assert "row 4" in note and "'a'" in note
+    assert "0.5995 from the mean of its 2 earlier repeat(s)" in note and "ignored" in note
+    np.testing.assert_allclose(t.working_repeats[0][:, 0], [0, 0.001, 0.002])
+    # the node's rule with an explicit outlier_distance (in the file's unit); 0 switches it off
+    strict = read_fiducials(write(tmp_path, text), outlier_distance=0.0012)
+    assert len(strict.notes) == 2 and "row 5" in strict.notes[1]
+    assert read_fiducials(write(tmp_path, text), outlier_distance=0).notes == ()

@@ -1,0 +1,119 @@
+"""Issue 11, CLI data safety: an output option of any subcommand that names an input file (the
+same file by path, symlink or hard link) is refused with one line, exit 2, before anything is
+written; the input is left byte for byte as it was."""
+
+import json
+import os
+
+import pytest
+
+from rbc_registration import cli
+from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io.bag.synthetic import cell_messages
+from rbc_registration.io.bag.writer import write_bag
+from rbc_registration.io.csv_io import write_fiducials, write_targets
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("safety")
+    cell = make_cell("RA", seed=3)
+    write_fiducials(d / "fiducials.csv", cell.fiducial_ids, cell.fiducial_measurements,
+                    [t[None] for t in cell.fiducial_truth])
+    write_targets(d / "targets.csv", cell.target_ids, cell.target_means * 1e-3,
+                  cell.target_truth * 1e-3)
+    write_bag(d / "bag", cell_messages(cell), "sqlite3", progress=False)
+    write_bag(d / "bag.mcap", cell_messages(cell), "mcap", progress=False)
+    mcap = next((d / "bag.mcap").glob("*.mcap"))
+    assert cli.main(["register", str(d / "fiducials.csv"), "--json", str(d / "report.json")]) == 0
+    return {"cell": cell, "dir": d, "fid": d / "fiducials.csv", "tgt": d / "targets.csv",
+            "bag": d / "bag", "mcap": mcap, "report": d / "report.json"}
+
+
+def _alias(path, how, tmp_path):
+    """``path`` itself, a symlink to it, a relative spelling or a hard link."""
+    if how == "same":
+        return path
+    if how == "relative":
+        return os.path.relpath(path)
+    alias = tmp_path / f"alias{path.suffix}"
+    (os.symlink if how == "symlink" else os.link)(path, alias)
+    return alias
+
+
+CASES = [  # (argv with {placeholders}, the output option, the input it names)
+    (["register", "{fid}", "--json", "{out}"], "--json", "fid"),
+    (["register", "{fid}", "--targets", "{tgt}", "--json", "{out}"], "--json", "tgt"),
+    (["evaluate", "{bag}", "--targets", "{tgt}", "--quiet", "--json", "{out}"], "--json", "tgt"),
+    (["evaluate", "{mcap}", "--quiet", "--json", "{out}"], "--json", "mcap"),
+    (["evaluate", "{bag}", "--quiet", "--out", "{out}"], "--out", "bag"),
+    (["evaluate", "{mcap}", "--quiet", "--out", "{out}"], "--out", "mcap"),
+    (["export", "{report}", "--out", "{out}"], "--out", "report"),
+]
+
+
+@pytest.mark.parametrize("how", ["same", "symlink", "hardlink", "relative"])
+@pytest.mark.parametrize("argv, option, victim", CASES,
+                         ids=[f"{c[0][0]}-{c[1]}-{c[2]}" for c in CASES])
+def test_an_output_onto_an_input_is_refused(tmp_path, capsys, monkeypatch, files, argv, option,
+                                            victim, how):
+    if how == "hardlink" and files[victim].is_dir():
+        pytest.skip("directories cannot be hard-linked")
+    monkeypatch.chdir(files["dir"])
+    target = files[victim]
+    before = sorted((p.name, p.stat().st_mtime_ns, p.read_bytes())
+                    for p in ([target] if target.is_file() else target.iterdir()))
+    names = {k: str(v) for k, v in files.items() if k != "cell"}
+    alias = _alias(target, how, tmp_path)
+    args = [a.format(**names, out=alias) for a in argv]
+    assert cli.main(args) == 2
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert option in lines[0] and "input" in lines[0] and "refus" in lines[0], lines[0]
+    assert "wrote" not in out
+    after = sorted((p.name, p.stat().st_mtime_ns, p.read_bytes())
+                   for p in ([target] if target.is_file() else target.iterdir()))
+    assert after == before
+
+
+def test_an_output_directory_holding_an_input_is_refused(tmp_path, capsys, files):
+    """``evaluate --out DIR`` writes DIR/report.json etc.: one of them may be an input."""
+    out = tmp_path / "out"
+    out.mkdir()
+    victim = out / "report.json"
+    cell = files["cell"]
+    write_targets(victim, cell.target_ids, cell.target_means * 1e-3, cell.target_truth * 1e-3)
+    content = victim.read_bytes()
+    assert cli.main(["evaluate", str(files["bag"]), "--targets", str(victim), "--quiet"]) == 0
+    assert cli.main(["evaluate", str(files["bag"]), "--targets", str(victim), "--quiet",
+                     "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "report.json" in err
+    assert victim.read_bytes() == content
+    assert [p.name for p in out.iterdir()] == ["report.json"]
+
+
+def test_other_outputs_still_work(tmp_path, capsys, files):
+    assert cli.main(["register", str(files["fid"]), "--json", str(tmp_path / "r.json")]) == 0
+    assert cli.main(["export", str(tmp_path / "r.json"), "--out", str(tmp_path / "c.yaml")]) == 0
+    assert (tmp_path / "c.yaml").is_file()
+
+
+def test_register_names_an_ignored_working_repeat_in_one_line(tmp_path, capsys):
+    """A working-frame repeat far from its siblings: one warning line (id, row, distance), the
+    row ignored as the node ignores an outlier; ``--outlier-distance`` sets the node's limit."""
+    f = tmp_path / "f.csv"
+    f.write_text("id,wx,wy,wz,dx,dy,dz\n" + "".join(
+        f"{i},{x},{y},{z},{x + 10},{y},{z}\n{i},{x + 1e-4},{y},{z},{x + 10},{y},{z}\n"
+        for i, (x, y, z) in enumerate([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)]))
+        + "3,0.3,0,1,10,0,1\n")
+    assert cli.main(["register", str(f), "--json", str(tmp_path / "r.json")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rbc-registration register: warning: "), err
+    assert "row 12" in err[0] and "fiducial '3'" in err[0] and "point is 0.29995 from" in err[0]
+    assert json.loads((tmp_path / "r.json").read_text())["n_measurements"] == 10
+    assert cli.main(["register", str(f), "--outlier-distance", "0"]) == 0
+    assert capsys.readouterr().err == ""
+    assert cli.main(["register", str(f), "--outlier-distance", "0.00001"]) == 0
+    assert len(capsys.readouterr().err.strip().splitlines()) == 6
