@@ -14,6 +14,7 @@ import argparse
 import sys
 from typing import Optional, Sequence
 
+from ..io.escape import terminal
 from ..runtime import default_one_blas_thread
 from . import evaluate, export, register, replay, reproduce, synth_bag
 
@@ -43,5 +44,5 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (ValueError, OSError) as exc:   # bad input: one clear line, no traceback
-        print(f"rbc-registration {args.command}: error: {exc}", file=sys.stderr)
+        print(f"rbc-registration {args.command}: error: {terminal(exc)}", file=sys.stderr)
         return 2

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..io.escape import terminal
 from .options import add_model_options, refuse_outputs_onto_inputs
 
 #: The input topics that can be named, with what they carry.
@@ -112,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
             table = read_targets(args.targets, dim)
             targets = Targets(table.ids, table.working, table.destination, str(args.targets))
             if contents.targets:
-                print(f"targets from {args.targets} (the bag's targets topic is ignored)")
+                print(f"targets from {terminal(args.targets)} (the bag's targets topic is ignored)")
         if args.loo:
             print("leave-one-out: one model rebuild per fiducial ...", flush=True)
         ev = evaluate_contents(contents, settings, targets, loo=args.loo)
@@ -122,8 +123,9 @@ def run(args: argparse.Namespace) -> int:
     print_summary(ev)
     if args.json:
         write_json(ev.report, args.json)
-        print(f"wrote {args.json}")
+        print(f"wrote {terminal(args.json)}")
     if args.out:
         paths = write_report_dir(ev, args.out, f"Evaluation of {args.bag.name}")
-        print(f"wrote {len(paths)} files to {args.out}/ (report.md, report.json, figures)")
+        print(f"wrote {len(paths)} files to {terminal(args.out)}/ (report.md, report.json, "
+              "figures)")
     return 0

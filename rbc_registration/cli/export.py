@@ -8,6 +8,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ..io.escape import terminal
 from .options import refuse_outputs_onto_inputs
 
 
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
                                     parent_frame=args.parent_frame,
                                     child_frame=args.child_frame, unit=args.unit, mtime=mtime)
     write_calibration(str(args.out), cal)
-    print(f"wrote {args.out}")
+    print(f"wrote {terminal(args.out)}")
     print(static_transform_publisher_command(cal))
     print()
     print(launch_snippet(cal), end="")

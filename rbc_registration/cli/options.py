@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Optional, Sequence
 
 from ..core.constants import DIMENSIONS, INTERPOLATIONS, RESTORATIONS
+from ..io.escape import terminal
 
 
 def positive(text: str) -> float:
@@ -36,7 +37,7 @@ def non_negative(text: str) -> float:
 
 def warn(command: str, text: str) -> None:
     """One warning line on stderr, ``rbc-registration COMMAND: warning: TEXT``."""
-    print(f"rbc-registration {command}: warning: {text}", file=sys.stderr)
+    print(f"rbc-registration {command}: warning: {terminal(text)}", file=sys.stderr)
 
 
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:

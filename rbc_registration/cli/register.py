@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
+from ..io.escape import terminal
 from .options import (add_model_options, name_list, non_negative, refuse_outputs_onto_inputs,
                       warn)
 
@@ -81,5 +82,5 @@ def run(args: argparse.Namespace) -> int:
     print(format_report(report))
     if args.json:
         write_json(report, args.json)
-        print(f"wrote {args.json}")
+        print(f"wrote {terminal(args.json)}")
     return 0

@@ -8,6 +8,7 @@ from typing import Any
 
 from ..core.constants import CELLS
 from ..io.bag.records import STORAGES
+from ..io.escape import terminal
 from .options import positive
 
 
@@ -44,9 +45,9 @@ def run(args: argparse.Namespace) -> int:
     n = write_bag(args.out, cell_messages(cell, topics, args.working_frame,
                                           args.destination_frame, args.period, args.points),
                   args.storage, progress=not args.quiet, total=total)
-    print(f"wrote {args.out} ({args.storage}): cell {args.cell} seed {args.seed}, "
+    print(f"wrote {terminal(args.out)} ({args.storage}): cell {args.cell} seed {args.seed}, "
           f"{len(cell.fiducial_ids)} fiducials ({n_fid} measurements"
           f"{' as point pairs' if args.points else ''}), {len(cell.target_ids)} targets "
-          f"({n_tgt} measurements) on {topics.targets}; {n} messages, metres, "
+          f"({n_tgt} measurements) on {terminal(topics.targets)}; {n} messages, metres, "
           f"{cell.spec.dimension}D{' (z = 0)' if cell.spec.dimension == 2 else ''}")
     return 0

@@ -25,6 +25,9 @@ from ..pipeline.settings import Settings
 from ..pipeline.targets import Targets
 from . import figures
 from .bag.records import BagContents
+from .escape import markdown as md_text
+from .escape import markdown_code as md_code
+from .escape import terminal
 from .report import format_report, model_report, write_json
 
 
@@ -107,12 +110,12 @@ def _mm(v: Optional[float], digits: int = 4) -> str:
 
 
 def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
-    """The Markdown report (lengths in mm)."""
+    """The Markdown report (lengths in mm; ids, paths and topics escaped)."""
     rep, m = ev.report, ev.model
     sl = list(m.sigma_l) + [math.nan] * 3
     bag = rep["bag"]
-    lines = [f"# {title or 'Registration report'}", "",
-             f"Bag `{bag['path']}`: " + ", ".join(f"{n} on `{t}`"
+    lines = [f"# {md_text(title) if title else 'Registration report'}", "",
+             f"Bag {md_code(bag['path'])}: " + ", ".join(f"{n} on {md_code(t)}"
                                                   for t, n in bag["messages"].items()) + ".",
              f"{rep['n_fiducials']} fiducials, {rep['n_measurements']} measurements, "
              f"{rep['dim']}D; rejected: " + (", ".join(f"{n} {r}" for r, n in
@@ -133,7 +136,7 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
                   f"corrections improved {100 * s['fraction_improved']:.0f}% of "
                   f"{len(rep['targets'])} targets.", "",
                   "| target | TRE_u | TRE_c | dTRE | inside hull |", "|---|---|---|---|---|"]
-        lines += [f"| {t['id']} | {_mm(t['tre_u'])} | {_mm(t['tre_c'])} | "
+        lines += [f"| {md_text(t['id'])} | {_mm(t['tre_u'])} | {_mm(t['tre_c'])} | "
                   f"{_mm(t['tre_c'] - t['tre_u'], 3)} | {'yes' if t['inside_hull'] else 'no'} |"
                   for t in rep["targets"]]
         lines.append("")
@@ -148,4 +151,4 @@ def print_summary(ev: Evaluation, log: Callable[[str], None] = print) -> None:
     if rejected:
         log("  rejected     " + ", ".join(f"{n} {r}" for r, n in rejected.items()))
     for note in ev.notes:
-        log(f"  note: {note}")
+        log(f"  note: {terminal(note)}")

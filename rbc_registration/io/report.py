@@ -14,6 +14,7 @@ from ..core.model import RbcModel
 from ..pipeline.jsonable import json_number as _num
 from ..pipeline.jsonable import json_vector as _vec
 from ..pipeline.jsonable import registration_json
+from .escape import terminal
 
 
 def _summary(err: Optional[TargetErrors]) -> dict[str, Any]:
@@ -83,8 +84,8 @@ def _fmt(v: Any, unit: str = "") -> str:
 
 
 def format_report(report: dict[str, Any]) -> str:
-    """A readable text version of a report dict."""
-    u = report["unit"]
+    """A readable text version of a report dict (ids and unit escaped for the terminal)."""
+    u = terminal(report["unit"])
     sig_l = ", ".join(f"{v:.3g}" if v is not None else "n/a" for v in report["sigma_L"])
     lines = [
         f"Registration of {report['n_fiducials']} fiducials ({report['n_measurements']} "
@@ -105,7 +106,8 @@ def format_report(report: dict[str, Any]) -> str:
             head += f" {'TRE_u':>10} {'TRE_c':>10} {'dTRE':>10}"
         lines.append(head)
         for t in report["targets"]:
-            row = (f"  {t['id']:<10} {np.linalg.norm(np.array(t['correction'], float)):>16.4g} "
+            eps = float(np.linalg.norm(np.array(t["correction"], float)))
+            row = (f"  {terminal(t['id']):<10} {eps:>16.4g} "
                    f"{'in' if t['inside_hull'] else 'OUT':>5}")
             if truth:
                 row += f" {t['tre_u']:>10.4g} {t['tre_c']:>10.4g} {t['tre_c'] - t['tre_u']:>+10.3g}"

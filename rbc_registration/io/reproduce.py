@@ -17,6 +17,7 @@ from ..core.experiments import CellResult, run_cell
 from ..core.model import ModelConfig
 from ..core.synthetic import make_cell
 from . import figures
+from .escape import terminal
 
 
 def findings(results: dict[str, CellResult]) -> list[dict[str, Any]]:
@@ -164,5 +165,6 @@ def reproduce(out: Path, seed: int = 0, repeats: Optional[int] = None,
            "cells": {c: _cell_json(r) for c, r in results.items()}, "findings": found,
            "figures": [p.name for p in paths]}
     (out / "reproduce.json").write_text(json.dumps(doc, indent=2) + "\n")
-    log(f"\nwrote {out / 'table1.md'}, {out / 'reproduce.json'} and {len(paths)} figures")
+    log(f"\nwrote {terminal(out / 'table1.md')}, {terminal(out / 'reproduce.json')} and "
+        f"{len(paths)} figures")
     return doc

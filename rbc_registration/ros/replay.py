@@ -14,6 +14,7 @@ from typing import Any, NamedTuple, Optional, Sequence, Union
 
 from ..io.bag.reader import read_raw
 from ..io.bag.records import BagError, RawMessage
+from ..io.escape import terminal
 from ..io.progress import Progress
 
 SETTLE_S = 0.5      # after the first subscriber matched: time for the others to be discovered
@@ -62,7 +63,7 @@ def _wait_for_subscribers(publishers: dict[str, Any], wait: float,
         time.sleep(0.02)
     missing = [t for t, p in publishers.items() if p.get_subscription_count() == 0]
     if missing:
-        log(f"replay: no subscriber on {', '.join(missing)} (after {wait:g} s at most); "
+        log(f"replay: no subscriber on {terminal(', '.join(missing))} (after {wait:g} s at most); "
             "publishing anyway")
 
 
@@ -91,7 +92,7 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
             if topics:
                 raise
             skipped.append(f"{topic} [{msgtype}]")
-            log(f"replay: skipping {topic}: no Python message type {msgtype}")
+            log(f"replay: skipping {terminal(topic)}: no Python message type {terminal(msgtype)}")
     messages = [m for m in messages if m.topic in classes]
     if not messages:
         raise BagError(f"bag {bag}: no messages to replay" + (
