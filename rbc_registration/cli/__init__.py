@@ -17,13 +17,14 @@ from typing import Optional, Sequence
 from ..io.escape import terminal
 from ..runtime import default_one_blas_thread
 from . import evaluate, export, register, replay, reproduce, synth_bag
+from .options import OneLineParser
 
 SUBCOMMANDS = (register, reproduce, evaluate, replay, synth_bag, export)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="rbc-registration",
         description="Rigid registration from fiducial pairs, improved by restoring the "
                     "rigid-body condition (NISTIR 8180).")

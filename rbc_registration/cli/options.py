@@ -7,29 +7,58 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Callable, Iterable, Optional, Sequence
+from typing import Callable, Iterable, NoReturn, Optional, Sequence
 
 from ..core.constants import DIMENSIONS, INTERPOLATIONS, RESTORATIONS
 from ..io.escape import terminal
 
 
-def positive(text: str) -> float:
-    """A finite number > 0."""
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``PROG: error: TEXT``, exit 2), like the
+    errors of the subcommands; ``--help`` shows the usage."""
+
+    def error(self, message: str) -> "NoReturn":  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {terminal(message)} (see --help)\n")
+
+
+def _number(text: str) -> float:
     try:
-        value = float(text)
+        return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
-    return value
+
+
+def number_in(low: float, high: float) -> Callable[[str], float]:
+    """An argument type: a number in ``[low, high]`` (NaN and inf refused)."""
+    def parse(text: str) -> float:
+        value = _number(text)
+        if not low <= value <= high:     # False for NaN
+            raise argparse.ArgumentTypeError(f"must be in [{low:g}, {high:g}], got {text!r}")
+        return value
+    return parse
+
+
+def integer_in(low: int, high: int) -> Callable[[str], int]:
+    """An argument type: an integer in ``[low, high]``."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be an integer in [{low}, {high}], "
+                                             f"got {text!r}")
+        return value
+    return parse
+
+
+#: ``--seed``: what numpy's generators take.
+seed = integer_in(0, 2**64 - 1)
 
 
 def non_negative(text: str) -> float:
     """A finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    value = _number(text)
     if not math.isfinite(value) or value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0 and finite, got {text!r}")
     return value
@@ -38,6 +67,22 @@ def non_negative(text: str) -> float:
 def warn(command: str, text: str) -> None:
     """One warning line on stderr, ``rbc-registration COMMAND: warning: TEXT``."""
     print(f"rbc-registration {command}: warning: {terminal(text)}", file=sys.stderr)
+
+
+def warn_unit_mismatch(command: str, fiducials: object, targets: object, report: dict) -> None:
+    """One warning line when every target is out of the hull at a scale ~100x or more off the
+    fiducials' (:func:`rbc_registration.core.scale.unit_mismatch`).
+
+    :param fiducials: the model's fiducials, working frame; :param targets: the report's
+        targets, working frame (``None``: none); :param report: the report (its hull flags).
+    """
+    from ..core.scale import unit_mismatch
+
+    if targets is None or not report.get("targets"):
+        return
+    text = unit_mismatch(fiducials, targets, [t["inside_hull"] for t in report["targets"]])
+    if text:
+        warn(command, text)
 
 
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 from ..io.escape import terminal
 from .options import (add_model_options, name_list, non_negative, refuse_outputs_onto_inputs,
-                      warn)
+                      warn, warn_unit_mismatch)
 
 if TYPE_CHECKING:   # imported when the subcommand runs (a fast --help)
     from ..core.model import ModelConfig
@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     report = model_report(model, tgt.ids if tgt else (), tgt.working if tgt else None,
                           tgt.destination if tgt else None, loo, args.unit)
     print(format_report(report))
+    warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report)
     if args.json:
         write_json(report, args.json)
         print(f"wrote {terminal(args.json)}")

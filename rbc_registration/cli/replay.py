@@ -8,20 +8,23 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .options import name_list, positive
+from ..io.bag.records import MAX_REPLAY_WAIT, REPLAY_RATES
+from .options import name_list, number_in
 
 
 def add_parser(sub: Any) -> None:
     """Add ``replay`` to the subparsers of ``rbc-registration``."""
     rp = sub.add_parser("replay", help="publish a bag into the live ROS graph")
     rp.add_argument("bag", type=Path, help="rosbag2 directory, .mcap or .db3 file")
-    rp.add_argument("--rate", type=positive, default=1.0,
-                    help="time scale: 2 plays twice as fast (default 1)")
+    rp.add_argument("--rate", type=number_in(*REPLAY_RATES), default=1.0,
+                    help=f"time scale: 2 plays twice as fast, {REPLAY_RATES[0]:g} to "
+                         f"{REPLAY_RATES[1]:g} (default 1)")
     rp.add_argument("--loop", action="store_true", help="play again and again until Ctrl-C")
     rp.add_argument("--topics", type=name_list("topics"), metavar="T1,T2",
                     help="only these topics (default: every topic)")
-    rp.add_argument("--wait", type=float, default=5.0, metavar="SECONDS",
-                    help="wait this long at most for subscribers before playing (default 5)")
+    rp.add_argument("--wait", type=number_in(0.0, MAX_REPLAY_WAIT), default=5.0,
+                    metavar="SECONDS", help="wait this long at most for subscribers before "
+                                            f"playing, 0 to {MAX_REPLAY_WAIT:g} (default 5)")
     rp.add_argument("--quiet", action="store_true", help="no progress output")
     rp.set_defaults(func=run)
 

@@ -6,18 +6,19 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..core.constants import CELLS
-from .options import name_list
+from ..core.constants import CELLS, MAX_REPEATS, MIN_REPRODUCE_REPEATS
+from .options import integer_in, name_list, seed
 
 
 def add_parser(sub: Any) -> None:
     """Add ``reproduce`` to the subparsers of ``rbc-registration``."""
     rep = sub.add_parser("reproduce", help="Table 1 and Figs 2-5 on synthetic cells A, B, RA")
     rep.add_argument("--out", type=Path, default=Path("reproduce_out"), help="output directory")
-    rep.add_argument("--seed", type=int, default=0)
-    rep.add_argument("--repeats", type=int, help="repeated measurements N (default: 200 for "
-                                                 "A and B, 16 for RA's repeated holes)")
-    rep.add_argument("--instantaneous", type=int, metavar="N",
+    rep.add_argument("--seed", type=seed, default=0)
+    rep.add_argument("--repeats", type=integer_in(MIN_REPRODUCE_REPEATS, MAX_REPEATS),
+                     help="repeated measurements N (default: 200 for A and B, 16 for RA's "
+                          "repeated holes)")
+    rep.add_argument("--instantaneous", type=integer_in(1, MAX_REPEATS), metavar="N",
                      help="process only N of the repeated datasets one by one (default: all)")
     rep.add_argument("--cells", type=name_list("cells"), default=CELLS,
                      help=f"comma-separated subset of {','.join(CELLS)}")

@@ -6,10 +6,10 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..core.constants import CELLS
-from ..io.bag.records import STORAGES
+from ..core.constants import CELLS, MAX_REPEATS
+from ..io.bag.records import PERIODS, STORAGES
 from ..io.escape import terminal
-from .options import positive
+from .options import integer_in, number_in, seed
 
 
 def add_parser(sub: Any) -> None:
@@ -18,10 +18,12 @@ def add_parser(sub: Any) -> None:
     sb.add_argument("out", type=Path, help="bag directory to create")
     sb.add_argument("--cell", choices=CELLS, required=True)
     sb.add_argument("--storage", choices=STORAGES, default=STORAGES[0])
-    sb.add_argument("--seed", type=int, default=0)
-    sb.add_argument("--repeats", type=int, help="repeated measurements N (default: the cell's)")
-    sb.add_argument("--period", type=positive, default=0.02,
-                    help="seconds between measurements (default 0.02)")
+    sb.add_argument("--seed", type=seed, default=0)
+    sb.add_argument("--repeats", type=integer_in(1, MAX_REPEATS),
+                    help="repeated measurements N (default: the cell's)")
+    sb.add_argument("--period", type=number_in(*PERIODS), default=0.02,
+                    help=f"seconds between measurements, {PERIODS[0]:g} to {PERIODS[1]:g} "
+                         "(default 0.02)")
     sb.add_argument("--points", action="store_true",
                     help="fiducials as PointStamped pairs without ids instead of FiducialPair")
     sb.add_argument("--working-frame", default="tracker")

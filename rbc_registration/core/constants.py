@@ -27,6 +27,10 @@ REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed", "stale")
 WORKING, DESTINATION = "working", "destination"
 #: The synthetic cells modelled on the paper's experiments (:mod:`.synthetic`).
 CELLS = ("A", "B", "RA")
+#: Repeated measurements N of a synthetic cell: at most this many (memory grows with N); the
+#: paper's Table 1 (``reproduce``) needs at least ``MIN_REPRODUCE_REPEATS`` for sigma.
+MAX_REPEATS = 10_000
+MIN_REPRODUCE_REPEATS = 2
 
 #: Metres per millimetre (the synthetic cells are in mm; ROS and bags are in metres).
 M_PER_MM = 1e-3

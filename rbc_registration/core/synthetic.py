@@ -22,7 +22,7 @@ from typing import Optional
 import numpy as np
 from numpy.typing import NDArray
 
-from .constants import CELLS
+from .constants import CELLS, MAX_REPEATS
 from .mismatch import sigma_l
 
 
@@ -111,8 +111,8 @@ def make_cell(name: str, seed: int = 0, repeats: Optional[int] = None) -> Synthe
         raise ValueError(f"cell must be one of {CELLS}, got {name!r}")
     spec = SPECS[name]
     if repeats is not None:
-        if repeats < 1:
-            raise ValueError(f"repeats must be >= 1, got {repeats}")
+        if not 1 <= repeats <= MAX_REPEATS:
+            raise ValueError(f"repeats must be in [1, {MAX_REPEATS}], got {repeats}")
         spec = CellSpec(spec.name, spec.dimension, spec.sigma, spec.sigma_l0, repeats,
                         spec.sigma_l0_on_means)
     rng = np.random.default_rng([seed, CELLS.index(name)])

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, NamedTuple, Optional, Sequence, Union
 
 from ..io.bag.reader import read_raw
-from ..io.bag.records import BagError, RawMessage
+from ..io.bag.records import MAX_REPLAY_WAIT, REPLAY_RATES, BagError, RawMessage
 from ..io.escape import terminal
 from ..io.progress import Progress
 
@@ -78,10 +78,14 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
     :param wait: seconds to wait at most for subscribers before the first message.
     :param context: an initialised ``rclpy.Context`` to use; default: a new one, shut down after.
     :raises BagError: for a bad bag, an unknown topic or a type rclpy does not know.
-    :raises ValueError: for a rate <= 0.
+    :raises ValueError: for a rate outside ``REPLAY_RATES`` or a wait outside
+        [0, ``MAX_REPLAY_WAIT``] (NaN included).
     """
-    if not rate > 0:
-        raise ValueError(f"rate must be > 0, got {rate!r}")
+    low, high = REPLAY_RATES
+    if not low <= rate <= high:
+        raise ValueError(f"rate must be in [{low:g}, {high:g}], got {rate!r}")
+    if not 0 <= wait <= MAX_REPLAY_WAIT:
+        raise ValueError(f"wait must be in [0, {MAX_REPLAY_WAIT:g}] s, got {wait!r}")
     messages = read_raw(bag, topics, progress=progress)
     types = {m.topic: m.msgtype for m in messages}
     classes, skipped = {}, []

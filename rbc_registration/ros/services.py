@@ -16,6 +16,7 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, SetF
 
 import re
 
+from ..core.scale import unit_mismatch
 from ..pipeline.settings import corrections_applied
 from ..pipeline.snapshot import snapshot_path
 from ..pipeline.state import EMPTY_STATE
@@ -74,6 +75,11 @@ class ServicesMixin:
         rho = model.rho if model.rho is not None else float("nan")
         note = (f"corrections {'applied' if applied else 'not applied'} (mode "
                 f"{s.apply_corrections}, recommendation {model.recommendation}, rho {rho:.3g})")
+        mismatch = None if tc.inside_hull.any() else unit_mismatch(model.working, points,
+                                                                     tc.inside_hull)
+        if mismatch:                    # cheap: only when no target is inside the hull
+            note += f"; warning: {mismatch}"
+            self.get_logger().warning(mismatch, throttle_duration_sec=10.0)
         return conv.target_corrections_to_msgs(tc, z, applied, s.destination_frame,
                                                [t.header.stamp for t in targets]), "", note
 

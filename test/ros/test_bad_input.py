@@ -296,6 +296,19 @@ class TestNodeBadInput(RosTestBase):
         assert not r.success and message in r.message
         self.assert_unharmed()
 
+    def test_targets_in_millimetres_get_a_unit_mismatch_warning(self):
+        """Issue 11: a batch in mm against a model in m (every target out of the hull, ~1000x
+        off): answered (success), and the message and the log name the likely unit mismatch."""
+        mm = [target_msg([1000.0 * v for v in t]) for t in self.cell["targets"][:5]]
+        r = self.srv(CorrectTargets, "correct_targets", CorrectTargets.Request(targets=mm))
+        assert r.success and len(r.results) == 5
+        assert "warning: all 5 targets are outside the fiducials' hull" in r.message
+        assert "unit mismatch" in self.logged("likely a unit mismatch")
+        ok = self.srv(CorrectTargets, "correct_targets", CorrectTargets.Request(
+            targets=[target_msg(t) for t in self.cell["targets"][:5]]))
+        assert ok.success and "warning" not in ok.message
+        self.assert_unharmed()
+
     def test_one_bad_target_in_a_batch(self):
         r = self.srv(CorrectTargets, "correct_targets", CorrectTargets.Request(
             targets=[target_msg(self.target), target_msg([0.1, math.nan, 0.3])]))

@@ -23,6 +23,13 @@ FIDUCIAL_PAIR = "rbc_registration_interfaces/msg/FiducialPair"
 POINT_STAMPED = "geometry_msgs/msg/PointStamped"
 INTERFACE_PACKAGE = "rbc_registration_interfaces"
 STORAGES = ("sqlite3", "mcap")
+#: ``replay``: the time scales accepted (0.001 plays a 1 s bag in 17 min; 1e6: as fast as the
+#: graph takes it) and the longest wait for subscribers [s].
+REPLAY_RATES = (1e-3, 1e6)
+MAX_REPLAY_WAIT = 3600.0
+#: ``synth-bag --period``: seconds between measurements (stamps are in whole nanoseconds and
+#: the bag must end before the int64 nanosecond stamps overflow).
+PERIODS = (1e-9, 3600.0)
 #: ``OutMessage.kind`` -> the message type written.
 MESSAGE_TYPES = {"pair": FIDUCIAL_PAIR, "point": POINT_STAMPED}
 

@@ -1,0 +1,94 @@
+"""Issue 11, bounds: zero, negative, huge and NaN values of the numeric options end in one clear
+line and exit 2 (never a traceback, a hang or an allocation of gigabytes), and targets in
+another unit than the fiducials (every target out of the hull by a factor ~1000) get one warning
+line naming the likely unit mismatch."""
+
+import json
+import os
+import resource
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from rbc_registration import cli
+from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io.bag.synthetic import cell_messages
+from rbc_registration.io.bag.writer import write_bag
+from rbc_registration.io.csv_io import write_fiducials, write_targets
+
+
+def _limits():
+    # A bound that is missing must not take the machine down: 3 GB of address space.
+    resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+
+@pytest.mark.parametrize("args, message", [
+    (["reproduce", "--repeats", "1"], "--repeats: must be an integer in [2, 10000], got '1'"),
+    (["reproduce", "--repeats", "1000000000"], "--repeats: must be an integer in [2, 10000]"),
+    (["reproduce", "--instantaneous", "0"], "--instantaneous: must be an integer in [1, "),
+    (["reproduce", "--instantaneous", "-1"], "--instantaneous: must be an integer in [1, "),
+    (["reproduce", "--seed", "-1"], "--seed: must be an integer in [0, "),
+    (["synth-bag", "--cell", "RA", "{tmp}/b1", "--repeats", "1000000000"],
+     "--repeats: must be an integer in [1, 10000]"),
+    (["synth-bag", "--cell", "RA", "{tmp}/b2", "--period", "1e300"], "--period: must be in"),
+    (["synth-bag", "--cell", "RA", "{tmp}/b3", "--period", "1e-300"], "--period: must be in"),
+    (["synth-bag", "--cell", "RA", "{tmp}/b4", "--seed", "-3"], "--seed: must be an integer in"),
+    (["replay", "{tmp}/bag", "--rate", "1e-12"], "--rate: must be in [0.001, 1e+06]"),
+    (["replay", "{tmp}/bag", "--rate", "nan"], "--rate: must be in"),
+    (["replay", "{tmp}/bag", "--wait", "inf"], "--wait: must be in [0, 3600]"),
+    (["replay", "{tmp}/bag", "--wait", "nan"], "--wait: must be in [0, 3600]"),
+    (["replay", "{tmp}/bag", "--wait", "-1"], "--wait: must be in [0, 3600]"),
+    (["register", "{tmp}/f.csv", "--outlier-distance", "nan"], "--outlier-distance: must be"),
+], ids=lambda v: " ".join(v) if isinstance(v, list) else None)
+def test_out_of_range_numbers_are_one_clear_line(tmp_path, args, message):
+    argv = [a.format(tmp=tmp_path) for a in args]
+    if argv[0] == "reproduce":
+        argv += ["--cells", "RA", "--out", str(tmp_path / "out")]
+    if argv[0] == "replay":      # a real bag: the bad values must not reach the player
+        write_bag(tmp_path / "bag", cell_messages(make_cell("RA", seed=0)), progress=False)
+    proc = subprocess.run([sys.executable, "-m", "rbc_registration.cli", *argv],
+                          capture_output=True, text=True, timeout=120, preexec_fn=_limits,
+                          env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert message in lines[0] and lines[0].startswith(f"rbc-registration {args[0]}: error: ")
+    assert not (tmp_path / "out").exists()          # refused before anything was written
+
+
+@pytest.fixture(scope="module")
+def mm_cell(tmp_path_factory):
+    d = tmp_path_factory.mktemp("units")
+    cell = make_cell("A", seed=0, repeats=2)
+    write_fiducials(d / "f.csv", cell.fiducial_ids, cell.fiducial_measurements,
+                    [t[None] for t in cell.fiducial_truth])
+    return d, cell
+
+
+@pytest.mark.parametrize("scale, warned", [(1e-3, True), (1e3, True), (1.0, False)])
+def test_targets_in_another_unit_get_one_warning_line(tmp_path, capsys, mm_cell, scale, warned):
+    d, cell = mm_cell
+    write_targets(tmp_path / "t.csv", cell.target_ids, cell.target_means * scale)
+    assert cli.main(["register", str(d / "f.csv"), "--targets", str(tmp_path / "t.csv"),
+                     "--json", str(tmp_path / "r.json")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    report = json.loads((tmp_path / "r.json").read_text())
+    if not warned:
+        assert err == [] and any(t["inside_hull"] for t in report["targets"])
+        return
+    assert not any(t["inside_hull"] for t in report["targets"])
+    assert len(err) == 1 and err[0].startswith("rbc-registration register: warning: ")
+    assert "unit" in err[0] and f"{len(cell.target_ids)} targets" in err[0]
+    ratio = float(err[0].split("~")[1].split("x")[0])
+    assert 300 <= ratio <= 3000                      # "~1e+03x": the factor, roughly
+
+
+def test_a_few_targets_out_of_the_hull_are_no_unit_mismatch(tmp_path, capsys, mm_cell):
+    d, cell = mm_cell
+    far = cell.target_means.copy()
+    far[:, 0] += np.ptp(cell.fiducial_truth[:, 0]) * 1.5   # out, but the same unit
+    write_targets(tmp_path / "t.csv", cell.target_ids, far)
+    assert cli.main(["register", str(d / "f.csv"), "--targets", str(tmp_path / "t.csv")]) == 0
+    assert capsys.readouterr().err == ""
