@@ -109,3 +109,35 @@ def test_console_script_is_installed():
     assert exe, f"rbc-registration not found in {candidates}"
     proc = subprocess.run([exe, "--help"], capture_output=True, text=True)
     assert proc.returncode == 0 and "reproduce" in proc.stdout
+
+
+@pytest.mark.parametrize("interpolation", ["paper", "kriging"])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_smallest_valid_configuration_registers_end_to_end(tmp_path, dim, interpolation):
+    """Issue 11: d + 1 well-spread fiducials (4 in 3D, 3 in 2D) are what restoration accepts;
+    the hull test and the interpolation accept them too, so ``register`` succeeds."""
+    rng = np.random.default_rng(dim)
+    simplex = np.vstack([np.zeros(dim), np.eye(dim)]) * 100.0          # mm
+    rot, _ = np.linalg.qr(rng.normal(size=(dim, dim)))
+    rot *= np.sign(np.linalg.det(rot))
+    working = [np.array([p, p + rng.normal(0, 0.05, dim)]) for p in simplex]
+    truth = simplex @ rot.T + 1000.0 + 0.3 * np.sin(simplex / 30.0)    # not rigid: eps != 0
+    ids = [f"F{k}" for k in range(dim + 1)]
+    write_fiducials(tmp_path / "f.csv", ids, working, [t[None] for t in truth])
+    inside, outside = simplex.mean(axis=0), simplex.mean(axis=0) + 300.0
+    write_targets(tmp_path / "t.csv", ["in", "out"], np.array([inside, outside]))
+    out = tmp_path / "r.json"
+    run("register", tmp_path / "f.csv", "--targets", tmp_path / "t.csv", "--interpolation",
+        interpolation, "--json", out)
+    rep = json.loads(out.read_text())
+    assert rep["n_fiducials"] == dim + 1 and rep["corrected"]["fre_rms"] < 1e-6
+    assert [t["inside_hull"] for t in rep["targets"]] == [True, False]
+    model = build_model(np.array([w.mean(axis=0) for w in working]), truth,
+                        ModelConfig(dimension=dim, interpolation=interpolation),
+                        working_repeats=working)
+    np.testing.assert_allclose([t["correction"] for t in rep["targets"]],
+                               model.correct(np.array([inside, outside])).correction,
+                               rtol=1e-9, atol=1e-12)
+    if interpolation == "paper":                 # barycentric at the centroid: the mean eps
+        np.testing.assert_allclose(rep["targets"][0]["correction"],
+                                   model.corrections.mean(axis=0), atol=1e-9)
