@@ -47,9 +47,15 @@ def leave_one_out(model: RbcModel) -> TargetErrors:
     left-out fiducial is evaluated as a target.
 
     Subsets in the config are dropped (indices would shift); all remaining fiducials are used.
+
+    :raises ValueError: with fewer than d + 2 fiducials (each rebuild needs d + 1).
     """
     x, y = model.working, model.destination
     j = len(x)
+    d = model.config.dimension
+    if j < d + 2:
+        raise ValueError(f"leave-one-out in {d}D needs at least {d + 2} fiducials (each rebuild "
+                         f"needs {d + 1}), got {j}")
     cfg = replace(model.config, uncorrected_subset=None, corrected_subset=None)
     if cfg.sigma is None and model.sigma:
         cfg = replace(cfg, sigma=model.sigma)

@@ -119,12 +119,13 @@ def test_the_smallest_valid_configuration_registers_end_to_end(tmp_path, dim, in
     rng = np.random.default_rng(dim)
     simplex = np.vstack([np.zeros(dim), np.eye(dim)]) * 100.0          # mm
     rot, _ = np.linalg.qr(rng.normal(size=(dim, dim)))
-    rot *= np.sign(np.linalg.det(rot))
+    rot[:, 0] *= np.sign(np.linalg.det(rot))                          # proper: det = +1
     working = [np.array([p, p + rng.normal(0, 0.05, dim)]) for p in simplex]
+    means = np.array([w.mean(axis=0) for w in working])
     truth = simplex @ rot.T + 1000.0 + 0.3 * np.sin(simplex / 30.0)    # not rigid: eps != 0
     ids = [f"F{k}" for k in range(dim + 1)]
     write_fiducials(tmp_path / "f.csv", ids, working, [t[None] for t in truth])
-    inside, outside = simplex.mean(axis=0), simplex.mean(axis=0) + 300.0
+    inside, outside = means.mean(axis=0), means.mean(axis=0) + 300.0
     write_targets(tmp_path / "t.csv", ["in", "out"], np.array([inside, outside]))
     out = tmp_path / "r.json"
     run("register", tmp_path / "f.csv", "--targets", tmp_path / "t.csv", "--interpolation",
@@ -132,12 +133,14 @@ def test_the_smallest_valid_configuration_registers_end_to_end(tmp_path, dim, in
     rep = json.loads(out.read_text())
     assert rep["n_fiducials"] == dim + 1 and rep["corrected"]["fre_rms"] < 1e-6
     assert [t["inside_hull"] for t in rep["targets"]] == [True, False]
-    model = build_model(np.array([w.mean(axis=0) for w in working]), truth,
+    model = build_model(means, truth,
                         ModelConfig(dimension=dim, interpolation=interpolation),
                         working_repeats=working)
     np.testing.assert_allclose([t["correction"] for t in rep["targets"]],
                                model.correct(np.array([inside, outside])).correction,
                                rtol=1e-9, atol=1e-12)
-    if interpolation == "paper":                 # barycentric at the centroid: the mean eps
+    loo = run("register", tmp_path / "f.csv", "--loo", check=False)   # d + 1: no rebuild left
+    assert loo.returncode == 2 and f"leave-one-out in {dim}D needs at least {dim + 2}" in loo.stderr
+    if interpolation == "paper" and dim == 3:   # barycentric at the centroid: the mean eps
         np.testing.assert_allclose(rep["targets"][0]["correction"],
                                    model.corrections.mean(axis=0), atol=1e-9)
