@@ -5,6 +5,7 @@ scipy, so the command-line parser can take its choices from here and stay fast.
 
 from __future__ import annotations
 
+from enum import Enum
 from typing import Optional
 
 #: Dimensions a registration can have: 2 (x, y as in the paper) or 3.
@@ -16,6 +17,12 @@ RESTORATIONS = ("iterative", "closed-form")
 MAX_RESTORATION_STEPS = 20
 #: How fiducial corrections are interpolated at a target (eq. 5).
 INTERPOLATIONS = ("paper", "kriging")
+#: The registration fitted to the measured fiducials, without corrections.
+UNCORRECTED = "uncorrected"
+#: What the decision chooses between: the uncorrected registration or a corrected one.
+CANDIDATES = (UNCORRECTED,) + INTERPOLATIONS
+#: How the fiducials are split for cross-validation (:mod:`.crossval`).
+FOLD_KINDS = ("leave-one-out", "k-fold")
 #: Outcomes of the rho rule (paper section 6), see :func:`rbc_registration.core.noise.assess`.
 RECOMMENDATIONS = ("apply", "uncertain", "do_not_apply", "unknown")
 #: Where sigma came from: given by the user, estimated from repeats, or unknown.
@@ -36,6 +43,29 @@ MIN_REPRODUCE_REPEATS = 2
 M_PER_MM = 1e-3
 #: Millimetres per metre (figures and Markdown reports of metre data show mm).
 MM_PER_M = 1e3
+
+
+
+class DecisionMode(str, Enum):
+    """How a model decides whether targets get corrections (``ModelConfig.decision``).
+
+    - ``cv`` (default): cross-validated on the fiducials; a correction is applied only when it
+      predicts held-out fiducials better than the uncorrected registration with confidence
+      (:mod:`.decision`). Needs no sigma.
+    - ``rho``: the paper's rule (section 6) on rho = sigma_L0 / sigma: apply when
+      rho >= rho_apply, with the configured interpolation. Needs sigma.
+    - ``on``: always apply the configured interpolation.
+    - ``off``: never apply corrections.
+    """
+
+    CV = "cv"
+    RHO = "rho"
+    ON = "on"
+    OFF = "off"
+
+
+#: The decision modes as strings (``cv``, ``rho``, ``on``, ``off``).
+DECISION_MODES = tuple(mode.value for mode in DecisionMode)
 
 
 def rho_thresholds_error(rho_reject: float, rho_apply: float) -> Optional[str]:

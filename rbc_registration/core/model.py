@@ -1,32 +1,44 @@
-"""The RBC registration model: restoration, noise, rho, both registrations and the interpolator.
+"""The RBC registration model: restoration, noise, rho, both registrations, the interpolators and
+the decision whether targets get corrections.
 
 This is what the CLI, the node and the bag evaluator build from a set of fiducials, and what answers
 target corrections::
 
-    model = build_model(working, destination, ModelConfig(dimension=3), ids=ids,
-                        working_repeats=repeats)
+    model = build_model(working, destination, ModelConfig(dimension=3), ids=ids)
+    model.decision.method, model.decision.reason   # what targets get, and why (decision.py)
     tc = model.correct(targets_working)
-    tc.corrected  # R_c (T - eps(T)) + tau_c in the destination frame (eq. 5-6)
+    tc.destination    # the point to use, per the decision, destination frame
+    tc.expected_tre   # its expected error; tc.tre_bound: the 95 % bound
+    tc.corrected      # R_c (T - eps(T)) + tau_c with the configured interpolation (eq. 5-6)
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple, Optional, Sequence, Union
+from typing import Mapping, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import INTERPOLATIONS, MAX_RESTORATION_STEPS, check_rho_thresholds
-from .interpolation import PaperInterpolator
+from .constants import (CANDIDATES, INTERPOLATIONS, UNCORRECTED, DecisionMode,
+                        check_rho_thresholds)
+from .crossval import cross_validate
+from .decision import Decision, decide
+from .interpolation import Interpolated, PaperInterpolator
 from .kriging import KrigingHyperparameters, KrigingInterpolator
-from .noise import RepeatStats, assess, repeat_stats, sigma_from_stats
+from .noise import RepeatStats, assess, axis_sigma, point_sigma, resolve_repeat_stats
 from .registration import Registration, rigid_fit
 from .restoration import METHODS, RestorationResult, restore_rigid_body
 from .validation import as_point_pairs, as_points, check_subset
 
 Interpolator = Union[PaperInterpolator, KrigingInterpolator]
+
+
+def _check_length(name: str, value: Optional[float]) -> None:
+    if value is not None and (not isinstance(value, (int, float)) or not math.isfinite(value)
+                              or value <= 0):
+        raise ValueError(f"{name} must be a positive finite length or None, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -36,9 +48,13 @@ class ModelConfig:
     :ivar dimension: 2 (x, y as in the paper) or 3.
     :ivar restoration: ``"iterative"`` (the paper's Gauss-Newton steps) or ``"closed-form"``.
     :ivar steps: iterative steps (paper: 2).
-    :ivar interpolation: ``"paper"`` (tetrahedron / 8 surrounding fiducials) or ``"kriging"``.
-    :ivar sigma: known noise sigma: RMS distance of one measurement from the true point (all axes;
-        per axis sigma / sqrt(d)), see :func:`noise.estimate_sigma`; ``None``: from repeats.
+    :ivar interpolation: ``"paper"`` (tetrahedron / 8 surrounding fiducials) or ``"kriging"``:
+        what ``TargetCorrections.corrected`` uses, and what modes ``rho`` and ``on`` apply.
+    :ivar sigma: known noise: RMS distance of one measurement from the true point, all axes
+        (:mod:`.noise`); ``None``: from repeats, or ``sigma_axis``.
+    :ivar sigma_axis: known noise per axis (sigma / sqrt(d)); give ``sigma`` or this, not both.
+    :ivar decision: :class:`~.constants.DecisionMode` (or its string): ``cv`` (default,
+        cross-validated, needs no sigma), ``rho`` (the paper's rule), ``on``, ``off``.
     :ivar rho_reject: rho below which correcting is not recommended (paper: 1).
     :ivar rho_apply: rho from which correcting is recommended (paper: 2.5).
     :ivar uncorrected_subset: indices of the fiducials the uncorrected registration is fitted to
@@ -51,6 +67,8 @@ class ModelConfig:
     steps: int = 2
     interpolation: str = "paper"
     sigma: Optional[float] = None
+    sigma_axis: Optional[float] = None
+    decision: DecisionMode = DecisionMode.CV
     rho_reject: float = 1.0
     rho_apply: float = 2.5
     uncorrected_subset: Optional[tuple[int, ...]] = None
@@ -63,28 +81,46 @@ class ModelConfig:
             raise ValueError(f"restoration must be one of {METHODS}, got {self.restoration!r}")
         if not isinstance(self.steps, int) or isinstance(self.steps, bool) or self.steps < 1:
             raise ValueError(f"steps must be a positive integer, got {self.steps!r}")
-        if self.steps > MAX_RESTORATION_STEPS:   # the node's restoration_steps range too
-            raise ValueError(f"steps must be in 1..{MAX_RESTORATION_STEPS}, got {self.steps!r}")
         if self.interpolation not in INTERPOLATIONS:
             raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, "
                              f"got {self.interpolation!r}")
-        if self.sigma is not None and (not math.isfinite(self.sigma) or self.sigma <= 0):
-            raise ValueError(f"sigma must be a positive finite length or None, got {self.sigma!r}")
+        _check_length("sigma", self.sigma)
+        _check_length("sigma_axis", self.sigma_axis)
+        if self.sigma is not None and self.sigma_axis is not None:
+            raise ValueError(f"give sigma or sigma_axis, not both (got {self.sigma!r} and "
+                             f"{self.sigma_axis!r})")
+        try:
+            object.__setattr__(self, "decision", DecisionMode(self.decision))
+        except ValueError:
+            raise ValueError(f"decision must be one of {[m.value for m in DecisionMode]}, "
+                             f"got {self.decision!r}") from None
         for name in ("rho_reject", "rho_apply"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
         check_rho_thresholds(self.rho_reject, self.rho_apply)
 
+    @property
+    def known_sigma(self) -> Optional[float]:
+        """The given noise in the ``sigma`` convention (from ``sigma`` or ``sigma_axis``)."""
+        return self.sigma if self.sigma is not None else point_sigma(self.sigma_axis,
+                                                                      self.dimension)
+
 
 class TargetCorrections(NamedTuple):
     """Answers for K targets (unit of the points).
 
     :ivar uncorrected: R_u T + tau_u, destination frame (K, d).
-    :ivar corrected: R_c (T - eps(T)) + tau_c, destination frame (K, d) (eq. 6).
-    :ivar correction: eps(T), working frame (K, d) (eq. 5).
+    :ivar corrected: R_c (T - eps(T)) + tau_c with the configured interpolation, destination
+        frame (K, d) (eq. 6).
+    :ivar correction: eps(T) of the configured interpolation, working frame (K, d) (eq. 5).
     :ivar inside_hull: (K,) target inside the fiducials' convex hull.
     :ivar expected_error: (K,) 1-sigma uncertainty of eps(T) per axis (kriging); NaN otherwise.
+    :ivar destination: the point to use per the decision (``RbcModel.decision.method``),
+        destination frame (K, d).
+    :ivar expected_tre: (K,) expected distance of ``destination`` from the true point (the
+        chosen method's cross-validated median error, scaled per target; ``ErrorModel``).
+    :ivar tre_bound: (K,) the distance ``destination`` stays within with 95 % probability.
     """
 
     uncorrected: NDArray[np.float64]
@@ -92,11 +128,19 @@ class TargetCorrections(NamedTuple):
     correction: NDArray[np.float64]
     inside_hull: NDArray[np.bool_]
     expected_error: NDArray[np.float64]
+    destination: NDArray[np.float64]
+    expected_tre: NDArray[np.float64]
+    tre_bound: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
 class RbcModel:
-    """An immutable RBC registration model; build it with :func:`build_model`."""
+    """An immutable RBC registration model; build it with :func:`build_model`.
+
+    ``sigma`` is in the point convention (:mod:`.noise`), ``sigma_axis`` per axis.
+    ``interpolators`` holds every interpolation built (the configured one always; in modes ``cv``
+    and ``rho`` the other too when the fiducials allow it).
+    """
 
     ids: tuple[str, ...]
     working: NDArray[np.float64]
@@ -112,6 +156,13 @@ class RbcModel:
     rho: Optional[float]
     recommendation: str
     interpolator: Interpolator = field(repr=False)
+    interpolators: Mapping[str, Interpolator] = field(repr=False)
+    decision: Decision = field(repr=False)
+
+    @property
+    def sigma_axis(self) -> Optional[float]:
+        """Noise per axis, sigma / sqrt(d); None when unknown."""
+        return axis_sigma(self.sigma, self.config.dimension)
 
     @property
     def corrections(self) -> NDArray[np.float64]:
@@ -125,21 +176,45 @@ class RbcModel:
 
     @property
     def kriging_hyperparameters(self) -> Optional[KrigingHyperparameters]:
-        """The fitted GP hyper-parameters when interpolation is kriging."""
-        return getattr(self.interpolator, "hyper", None)
+        """The fitted GP hyper-parameters when a kriging interpolator was built (pass them as
+        ``kriging_warm_start`` to the next :func:`build_model`)."""
+        kriging = self.interpolators.get("kriging")
+        return kriging.hyper if kriging is not None else None
 
     def correct(self, targets: ArrayLike) -> TargetCorrections:
-        """Correct targets measured in the working frame (eq. 5-6).
+        """Correct targets measured in the working frame (eq. 5-6) and give the point to use.
 
-        :param targets: (K, d) working-frame points (d = ``config.dimension``).
+        :param targets: (K, d) working-frame points (d = ``config.dimension``), each measured
+            once.
         :return: :class:`TargetCorrections`.
         :raises ValueError: on a wrong shape or NaN/inf.
         """
         t = as_points(targets, "targets", self.config.dimension)
-        interp = self.interpolator(t)
-        return TargetCorrections(self.uncorrected.apply(t),
-                                 self.corrected.apply(t - interp.correction),
-                                 interp.correction, interp.inside_hull, interp.expected_error)
+        found: dict[str, Interpolated] = {self.config.interpolation: self.interpolator(t)}
+
+        def interpolated(method: str) -> Interpolated:
+            if method not in found:
+                found[method] = self.interpolators[method](t)
+            return found[method]
+
+        interp = found[self.config.interpolation]
+        uncorrected = self.uncorrected.apply(t)
+        corrected = self.corrected.apply(t - interp.correction)
+        method = self.decision.method
+        if method == UNCORRECTED:
+            destination = uncorrected
+        elif method == self.config.interpolation:
+            destination = corrected
+        else:
+            destination = self.corrected.apply(t - interpolated(method).correction)
+        errors = self.decision.error_model
+        scale = np.ones(len(t))
+        if errors.scaled:
+            kriging = self.interpolators["kriging"]
+            scale = np.hypot(interpolated("kriging").expected_error, kriging.noise_axis_std)
+        expected, bound = errors.at(scale)
+        return TargetCorrections(uncorrected, corrected, interp.correction, interp.inside_hull,
+                                 interp.expected_error, destination, expected, bound)
 
 
 def _fit_subset(working: NDArray[np.float64], destination: NDArray[np.float64],
@@ -151,22 +226,33 @@ def _fit_subset(working: NDArray[np.float64], destination: NDArray[np.float64],
     return fit._replace(fre_rms=float(np.sqrt(np.mean(np.sum(res * res, axis=1)))))
 
 
+def _candidates(mode: DecisionMode, configured: str) -> tuple[str, ...]:
+    """What the decision cross-validates: all in ``cv`` and ``rho``, the configured
+    interpolation in ``on``, the uncorrected registration always (for its expected error)."""
+    if mode in (DecisionMode.CV, DecisionMode.RHO):
+        return CANDIDATES
+    return (UNCORRECTED, configured) if mode is DecisionMode.ON else (UNCORRECTED,)
+
+
 def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig = ModelConfig(),
                 *, ids: Optional[Sequence[str]] = None,
                 working_repeats: Optional[Sequence[ArrayLike]] = None,
                 repeat_statistics: Optional[RepeatStats] = None,
-                kriging_hyperparameters: Optional[KrigingHyperparameters] = None) -> RbcModel:
-    """Build the RBC registration model from J fiducials.
+                kriging_hyperparameters: Optional[KrigingHyperparameters] = None,
+                kriging_warm_start: Optional[KrigingHyperparameters] = None) -> RbcModel:
+    """Build the RBC registration model from J fiducials, with its decision (``config.decision``).
 
     :param working: mean fiducial locations in the working frame X, (J, d).
     :param destination: the same fiducials in the destination frame Y, (J, d).
     :param config: :class:`ModelConfig`.
     :param ids: fiducial ids (default ``"0"``, ``"1"``, ...).
     :param working_repeats: the individual working-frame measurements of each fiducial, one
-        (n_j, d) array each; they give sigma (when ``config.sigma`` is None) and n_j for kriging.
+        (n_j, d) array each; they give sigma (when none is given) and n_j for kriging.
     :param repeat_statistics: the same information as :class:`~.noise.RepeatStats` (counts and
         per-fiducial variances), e.g. kept as running sums; give one of the two at most.
-    :param kriging_hyperparameters: reuse fitted GP hyper-parameters instead of fitting them.
+    :param kriging_hyperparameters: use these GP hyper-parameters as they are (no fit).
+    :param kriging_warm_start: fit the GP hyper-parameters starting from these, e.g. the previous
+        model's ``kriging_hyperparameters`` (much faster when the fiducials changed little).
     :return: :class:`RbcModel`.
     :raises ValueError: on bad input or a degenerate fiducial configuration.
     """
@@ -177,38 +263,45 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
         raise ValueError(f"got {len(names)} ids for {j} fiducials")
     if len(set(names)) != j:
         raise ValueError("fiducial ids must be unique")
-    if working_repeats is not None and repeat_statistics is not None:
-        raise ValueError("give working_repeats or repeat_statistics, not both")
-    if working_repeats is not None:
-        if len(working_repeats) != j:
-            raise ValueError(f"got repeats for {len(working_repeats)} fiducials, expected {j}")
-        stats = repeat_stats(working_repeats, config.dimension)
-    elif repeat_statistics is not None:
-        stats = RepeatStats(np.asarray(repeat_statistics.counts, dtype=np.int64),
-                            np.asarray(repeat_statistics.variances, dtype=np.float64))
-        if stats.counts.shape != (j,) or stats.variances.shape != (j,) or (stats.counts < 1).any():
-            raise ValueError(f"repeat statistics must hold {j} counts >= 1 and {j} variances")
-    else:
-        stats = RepeatStats(np.ones(j, dtype=np.int64), np.full(j, np.nan))
-    counts = stats.counts
-    sigma_est = sigma_from_stats(stats)
-    if config.sigma is not None:
-        sigma, source = config.sigma, "given"
+    stats, sigma_est = resolve_repeat_stats(j, config.dimension, working_repeats,
+                                            repeat_statistics)
+    if config.known_sigma is not None:
+        sigma, source = config.known_sigma, "given"
     elif sigma_est is not None:
         sigma, source = sigma_est, "repeats"
     else:
         sigma, source = None, "unknown"
 
     restoration = restore_rigid_body(x, y, config.restoration, config.steps)
-    rho, recommendation = assess(restoration.sigma_l0, sigma, config.rho_reject,
-                                 config.rho_apply)
+    assessment = assess(restoration.sigma_l0, sigma, config.rho_reject, config.rho_apply)
     uncorrected = _fit_subset(x, y, config.uncorrected_subset, "uncorrected_subset")
     corrected = _fit_subset(restoration.corrected(x), y, config.corrected_subset,
                             "corrected_subset")
-    if config.interpolation == "paper":
-        interpolator: Interpolator = PaperInterpolator(x, restoration.corrections)
-    else:
-        interpolator = KrigingInterpolator(x, restoration.corrections, sigma, counts,
-                                           kriging_hyperparameters)
-    return RbcModel(names, x, y, counts, config, stats, restoration, uncorrected, corrected, sigma,
-                    source, rho, recommendation, interpolator)
+    candidates = _candidates(config.decision, config.interpolation)
+    interpolators: dict[str, Interpolator] = {}
+    failed: dict[str, str] = {}
+    for method in INTERPOLATIONS:
+        if method != config.interpolation and method not in candidates:
+            continue
+        try:
+            if method == "paper":
+                interpolators[method] = PaperInterpolator(x, restoration.corrections)
+            else:
+                interpolators[method] = KrigingInterpolator(
+                    x, restoration.corrections, sigma, stats.counts, kriging_hyperparameters,
+                    kriging_warm_start)
+        except ValueError as exc:
+            if method == config.interpolation:
+                raise
+            failed[method] = str(exc)
+    cv = cross_validate(x, y, [c for c in candidates if c == UNCORRECTED or c in interpolators],
+                        restoration=config.restoration, steps=config.steps,
+                        uncorrected_subset=config.uncorrected_subset,
+                        corrected_subset=config.corrected_subset,
+                        kriging=interpolators.get("kriging"))
+    cv = cv._replace(unavailable={**cv.unavailable, **failed})
+    decision = decide(config.decision, cv, config.interpolation, assessment, config.rho_reject,
+                      config.rho_apply)
+    return RbcModel(names, x, y, stats.counts, config, stats, restoration, uncorrected, corrected,
+                    sigma, source, assessment.rho, assessment.recommendation,
+                    interpolators[config.interpolation], interpolators, decision)

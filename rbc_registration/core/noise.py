@@ -1,4 +1,20 @@
-"""Noise sigma from repeated measurements (paper section 4) and the rho decision rule (section 6)."""
+"""Noise sigma from repeated measurements (paper section 4) and the rho decision rule (section 6).
+
+Two conventions for the noise of one measurement, both reported by the model:
+
+- ``sigma`` (the project's, used by rho): the RMS distance of one measurement from the true point,
+  all axes together, sigma^2 = E||X - X_true||^2 (:func:`estimate_sigma`);
+- ``sigma_axis``: the standard deviation per axis, sigma / sqrt(d) for isotropic noise.
+
+rho = sigma_L0 / sigma (paper Table 1). Pure noise makes every pairwise mismatch L_ij (eq. 1) the
+difference of two points' noise along the pair, of standard deviation sqrt(2) sigma_axis, so it
+gives rho = sqrt(2 / d): 1 in 2D (0.82 in 3D), the paper's threshold below which correcting makes
+registration worse. Taking sigma_axis for sigma instead inflates rho by sqrt(d) (pure noise then
+gives 1.41): the paper does not say which convention its sigma uses, and the rho rule's answer
+depends on it (an RA-like cell with 0.11 mm per axis has rho 1.8, "uncertain", in the point
+convention, 2.5, "apply", if 0.11 mm were taken per point). The cross-validated decision
+(:mod:`.decision`) needs neither.
+"""
 
 from __future__ import annotations
 
@@ -25,6 +41,16 @@ class RepeatStats(NamedTuple):
         return RepeatStats(self.counts[index], self.variances[index])
 
 
+def axis_sigma(sigma: Optional[float], dim: int) -> Optional[float]:
+    """sigma_axis = sigma / sqrt(d) (module docstring); None stays None."""
+    return None if sigma is None else sigma / math.sqrt(dim)
+
+
+def point_sigma(sigma_axis: Optional[float], dim: int) -> Optional[float]:
+    """sigma = sigma_axis * sqrt(d) (module docstring); None stays None."""
+    return None if sigma_axis is None else sigma_axis * math.sqrt(dim)
+
+
 def repeat_stats(repeats: Sequence[ArrayLike], dim: Optional[int] = None) -> RepeatStats:
     """:class:`RepeatStats` of one (n_j, d) array of working-frame measurements per fiducial.
 
@@ -37,6 +63,32 @@ def repeat_stats(repeats: Sequence[ArrayLike], dim: Optional[int] = None) -> Rep
         counts.append(len(g))
         variances.append(float(np.sum(np.var(g, axis=0, ddof=1))) if len(g) >= 2 else np.nan)
     return RepeatStats(np.array(counts, dtype=np.int64), np.array(variances, dtype=np.float64))
+
+
+def resolve_repeat_stats(count: int, dim: int, working_repeats: Optional[Sequence[ArrayLike]],
+                         repeat_statistics: Optional[RepeatStats]
+                         ) -> tuple[RepeatStats, Optional[float]]:
+    """The :class:`RepeatStats` of ``count`` fiducials from their repeats, or as given, or one
+    measurement each when neither is given; and sigma from them (None without repeats).
+
+    :raises ValueError: when both are given or they do not match ``count`` fiducials.
+    """
+    if working_repeats is not None and repeat_statistics is not None:
+        raise ValueError("give working_repeats or repeat_statistics, not both")
+    if working_repeats is not None:
+        if len(working_repeats) != count:
+            raise ValueError(f"got repeats for {len(working_repeats)} fiducials, expected {count}")
+        stats = repeat_stats(working_repeats, dim)
+    elif repeat_statistics is not None:
+        stats = RepeatStats(np.asarray(repeat_statistics.counts, dtype=np.int64),
+                            np.asarray(repeat_statistics.variances, dtype=np.float64))
+        if (stats.counts.shape != (count,) or stats.variances.shape != (count,)
+                or (stats.counts < 1).any()):
+            raise ValueError(f"repeat statistics must hold {count} counts >= 1 and {count} "
+                             f"variances")
+    else:
+        stats = RepeatStats(np.ones(count, dtype=np.int64), np.full(count, np.nan))
+    return stats, sigma_from_stats(stats)
 
 
 def sigma_from_stats(stats: RepeatStats) -> Optional[float]:

@@ -1,0 +1,194 @@
+"""Cross-validation of the candidates on the fiducials, needing no sigma and no targets.
+
+The fiducials are split into folds (:func:`fold_scheme`): leave-one-out up to
+:data:`LOO_MAX_FIDUCIALS` fiducials, :data:`K_FOLDS`-fold above (the cost grows with the number of
+folds: every fold repeats the restoration and the interpolation). Each fold's fiducials are held
+out and predicted as targets from a model built without them: their working-frame points are
+mapped into the destination frame and compared with their destination-frame points (eq. 3). Per
+fold, everything the prediction uses is refitted on the kept fiducials only:
+
+- ``uncorrected``: the rigid registration {R_u, tau_u} (eq. 2);
+- ``paper`` and ``kriging``: the restoration (eq. 4), the corrected registration {R_c, tau_c} and
+  the interpolation of the fold's own corrections to the held-out points (eq. 5-6).
+
+Kriging conditions the Gaussian process exactly on the kept fiducials' corrections (the closed-form
+GP prediction from the precision matrix, :meth:`KrigingInterpolator.held_out`), with the
+hyper-parameters of the fit to all fiducials. That is the only information that leaks from a
+held-out fiducial into its prediction: three scalars (s, l, sigma) fitted to J d correction values,
+on which one fiducial has an influence of order 1/J, and which enter the prediction smoothly (the
+posterior mean is flat near the likelihood's optimum). The optimism this causes is of the order of
+3 / (J d) of the squared error, below 1 % in RMS for J >= 50 in 2D; `test_crossval.py` checks it
+against hyper-parameters refitted in every fold.
+
+Subsets of fiducials for the registrations (``uncorrected_subset``, ``corrected_subset``) are kept
+as far as they are in the fold; a fold that leaves too few of them to fix a registration uses all
+kept fiducials.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, NamedTuple, Optional, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .constants import CANDIDATES, FOLD_KINDS, INTERPOLATIONS, UNCORRECTED
+from .interpolation import PaperInterpolator
+from .kriging import KrigingInterpolator
+from .registration import Registration, rigid_fit
+from .restoration import restore_rigid_body
+from .validation import as_point_pairs
+
+#: Leave-one-out up to this many fiducials (J folds: at J = 277 in 2D about a second for all
+#: candidates); above it, :data:`K_FOLDS` folds.
+LOO_MAX_FIDUCIALS = 300
+#: Number of folds above :data:`LOO_MAX_FIDUCIALS`.
+K_FOLDS = 10
+
+
+class FoldScheme(NamedTuple):
+    """How the fiducials are split: ``kind`` one of :data:`~.constants.FOLD_KINDS` and the number
+    of folds (J for leave-one-out)."""
+
+    kind: str
+    n_folds: int
+
+    def describe(self) -> str:
+        """E.g. ``leave-one-out (277 folds)`` or ``10-fold``."""
+        if self.kind == FOLD_KINDS[0]:
+            return f"{self.kind} ({self.n_folds} folds)"
+        return f"{self.n_folds}-fold"
+
+
+def fold_scheme(count: int) -> FoldScheme:
+    """The size rule: leave-one-out for ``count`` <= :data:`LOO_MAX_FIDUCIALS` fiducials,
+    else :data:`K_FOLDS`-fold."""
+    if count <= LOO_MAX_FIDUCIALS:
+        return FoldScheme(FOLD_KINDS[0], count)
+    return FoldScheme(FOLD_KINDS[1], K_FOLDS)
+
+
+def fold_groups(working: NDArray[np.float64], scheme: FoldScheme) -> list[NDArray[np.intp]]:
+    """The index sets held out together. k-fold: the fiducials ranked by distance from their
+    centroid (stable for ties), rank r in fold r mod k, so every fold spans the cell and the split
+    does not depend on the order of the fiducials nor on a rigid motion of either frame."""
+    j = len(working)
+    if scheme.kind == FOLD_KINDS[0]:
+        return [np.array([k], dtype=np.intp) for k in range(j)]
+    radius = np.linalg.norm(working - working.mean(axis=0), axis=1)
+    rank = np.empty(j, dtype=np.intp)
+    rank[np.argsort(radius, kind="stable")] = np.arange(j)
+    return [np.flatnonzero(rank % scheme.n_folds == f) for f in range(scheme.n_folds)]
+
+
+class CrossValidation(NamedTuple):
+    """Held-out errors per fiducial (unit of the points).
+
+    :ivar scheme: the :class:`FoldScheme` used.
+    :ivar errors: per candidate evaluated, (J,) distance in the destination frame between the
+        prediction of each held-out fiducial and its destination point (eq. 3).
+    :ivar scale: (J,) kriging's predictive standard deviation per axis of each held-out fiducial
+        (:meth:`KrigingInterpolator.held_out`), when a kriging model was given; else None.
+    :ivar unavailable: candidates that could not be cross-validated, with the reason.
+    """
+
+    scheme: FoldScheme
+    errors: Mapping[str, NDArray[np.float64]]
+    scale: Optional[NDArray[np.float64]]
+    unavailable: Mapping[str, str]
+
+
+def minimum_fiducials(dimension: int) -> int:
+    """Fewest fiducials to cross-validate: every fold keeps d + 1 to restore the RBC (eq. 4)."""
+    return dimension + 2
+
+
+def _fit(x: NDArray[np.float64], y: NDArray[np.float64], kept: NDArray[np.intp],
+         subset: Optional[Sequence[int]]) -> Registration:
+    if subset is not None:
+        local = np.flatnonzero(np.isin(kept, np.asarray(subset)))
+        try:
+            return rigid_fit(x[local], y[local])
+        except ValueError:
+            pass                            # the fold left too few of the subset
+    return rigid_fit(x, y)
+
+
+def cross_validate(working: ArrayLike, destination: ArrayLike,
+                   candidates: Sequence[str] = CANDIDATES, *, restoration: str = "iterative",
+                   steps: int = 2, uncorrected_subset: Optional[Sequence[int]] = None,
+                   corrected_subset: Optional[Sequence[int]] = None,
+                   kriging: Optional[KrigingInterpolator] = None,
+                   scheme: Optional[FoldScheme] = None) -> CrossValidation:
+    """Held-out errors of each candidate (module docstring).
+
+    :param working: fiducials in the working frame X (J, d).
+    :param destination: the same fiducials in the destination frame Y (J, d).
+    :param candidates: among :data:`~.constants.CANDIDATES`.
+    :param restoration: restoration method of every fold (``iterative`` or ``closed-form``).
+    :param steps: iterative steps.
+    :param uncorrected_subset: indices the uncorrected registration is fitted to (None: all).
+    :param corrected_subset: indices the corrected registration is fitted to (None: all).
+    :param kriging: the kriging interpolator fitted to all fiducials (its hyper-parameters and
+        covariance); needed for the ``kriging`` candidate and for ``scale``.
+    :param scheme: the folds; default :func:`fold_scheme`.
+    :return: :class:`CrossValidation`; a candidate that fails (too few fiducials, degenerate
+        geometry in a fold) is listed in ``unavailable`` with the reason.
+    :raises ValueError: on bad input or an unknown candidate.
+    """
+    x, y = as_point_pairs(working, destination)
+    j, d = x.shape
+    unknown = [c for c in candidates if c not in CANDIDATES]
+    if unknown:
+        raise ValueError(f"candidates must be among {CANDIDATES}, got {unknown}")
+    scheme = scheme or fold_scheme(j)
+    unavailable: dict[str, str] = {}
+    if j < minimum_fiducials(d):
+        why = f"cross-validation needs at least {minimum_fiducials(d)} fiducials, got {j}"
+        return CrossValidation(scheme, {}, None, {c: why for c in candidates})
+    if "kriging" in candidates and kriging is None:
+        unavailable["kriging"] = "no kriging model"
+    groups = fold_groups(x, scheme)
+    held_out = kriging.held_out(groups) if kriging is not None else None
+    scale = np.full(j, np.nan) if held_out is not None else None
+    errors = {c: np.full(j, np.nan) for c in candidates if c not in unavailable}
+    corrected = [c for c in errors if c in INTERPOLATIONS]
+    for f, held in enumerate(groups):
+        kept = np.setdiff1d(np.arange(j), held)
+        xk, yk, xs, ys = x[kept], y[kept], x[held], y[held]
+        if held_out is not None:
+            scale[held] = held_out[f][1]
+        if UNCORRECTED in errors:
+            try:
+                reg = _fit(xk, yk, kept, uncorrected_subset)
+            except ValueError as exc:          # the kept fiducials cannot fix a registration
+                unavailable.update({c: f"fold {f + 1}: {exc}" for c in errors})
+                break
+            errors[UNCORRECTED][held] = np.linalg.norm(reg.apply(xs) - ys, axis=1)
+        if not corrected:
+            continue
+        try:
+            eps = restore_rigid_body(xk, yk, restoration, steps, compute_sigma_l=False).corrections
+            reg_c = _fit(xk - eps, yk, kept, corrected_subset)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            unavailable.update({c: f"fold {f + 1}: {exc}" for c in corrected})
+            corrected = []
+            continue
+        for c in list(corrected):
+            try:
+                if c == "paper":
+                    eps_s = PaperInterpolator(xk, eps)(xs).correction
+                else:
+                    eps_s = held_out[f][0] @ eps
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                unavailable[c] = f"fold {f + 1}: {exc}"
+                corrected.remove(c)
+                continue
+            errors[c][held] = np.linalg.norm(reg_c.apply(xs - eps_s) - ys, axis=1)
+    for c in unavailable:
+        errors.pop(c, None)
+    for e in errors.values():
+        e.setflags(write=False)
+    if scale is not None:
+        scale.setflags(write=False)
+    return CrossValidation(scheme, errors, scale, unavailable)
