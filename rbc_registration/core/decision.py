@@ -39,6 +39,10 @@ from .noise import Assessment
 SIGNIFICANCE = 0.05
 #: Coverage of the reported error bound of a target (``TargetCorrections.tre_bound``).
 BOUND_LEVEL = 0.95
+#: Paired differences smaller than this fraction of the uncorrected median error are ties (dropped
+#: by the Wilcoxon test): e.g. kriging's near-zero corrections on pure noise differ from the
+#: uncorrected errors only by rounding, whose signs must not decide anything.
+TIE_TOLERANCE = 1e-6
 #: A correction that looks better by less than this fraction of the uncorrected median error is
 #: not worth applying: a ``cv`` decision for the uncorrected registration is confident when no
 #: candidate improves the median by this much, or when one is shown better.
@@ -158,8 +162,10 @@ def conformal_quantile(values: ArrayLike, level: float = BOUND_LEVEL) -> float:
 def paired_test(uncorrected: NDArray[np.float64], method: NDArray[np.float64]
                 ) -> tuple[float, float]:
     """One-sided Wilcoxon signed-rank test that ``method``'s errors are smaller (paired per
-    fiducial): (W+, p). Identical errors give (0, 1)."""
+    fiducial): (W+, p). Differences within :data:`TIE_TOLERANCE` are ties and dropped; identical
+    errors give (0, 1)."""
     diff = uncorrected - method
+    diff[np.abs(diff) <= TIE_TOLERANCE * float(np.median(uncorrected))] = 0.0
     if not np.any(diff != 0):
         return 0.0, 1.0
     res = scipy.stats.wilcoxon(diff, alternative="greater")

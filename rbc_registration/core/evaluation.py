@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .model import RbcModel, build_model
+from .constants import FOLD_KINDS, UNCORRECTED
+from .crossval import FoldScheme, cross_validate
+from .model import RbcModel
 from .validation import as_point_pairs
 
 
@@ -42,30 +43,33 @@ def target_errors(model: RbcModel, targets_working: ArrayLike,
 
 
 def leave_one_out(model: RbcModel) -> TargetErrors:
-    """Accuracy estimate without targets: each fiducial in turn is left out, the model rebuilt
-    from the others (same config; kriging reuses the full model's hyper-parameters) and the
-    left-out fiducial is evaluated as a target.
+    """Accuracy estimate without targets: each fiducial in turn is held out and evaluated as a
+    target of a model rebuilt from the others (restoration and both registrations refitted;
+    kriging conditioned on the others with the full model's hyper-parameters), see
+    :func:`~.crossval.cross_validate`. ``tre_c`` is the configured interpolation's.
 
-    Subsets in the config are dropped (indices would shift); all remaining fiducials are used.
+    Subsets in the config are not used (indices would shift); all remaining fiducials are.
+    Reuses the decision's cross-validation when that was leave-one-out without subsets.
 
-    :raises ValueError: with fewer than d + 2 fiducials (each rebuild needs d + 1).
+    :raises ValueError: with fewer than d + 2 fiducials (each rebuild needs d + 1), or when a fold
+        is degenerate.
     """
-    x, y = model.working, model.destination
-    j = len(x)
-    d = model.config.dimension
+    cfg = model.config
+    j, d = len(model.working), cfg.dimension
     if j < d + 2:
         raise ValueError(f"leave-one-out in {d}D needs at least {d + 2} fiducials (each rebuild "
                          f"needs {d + 1}), got {j}")
-    cfg = replace(model.config, uncorrected_subset=None, corrected_subset=None)
-    if cfg.sigma is None and model.sigma:
-        cfg = replace(cfg, sigma=model.sigma)
-    tre_u = np.empty(j)
-    tre_c = np.empty(j)
-    for k in range(j):
-        keep = np.arange(j) != k
-        sub = build_model(x[keep], y[keep], cfg,
-                          repeat_statistics=model.repeat_stats.subset(keep),
-                          kriging_hyperparameters=model.kriging_hyperparameters)
-        err = target_errors(sub, x[k:k + 1], y[k:k + 1])
-        tre_u[k], tre_c[k] = err.tre_u[0], err.tre_c[0]
+    method = cfg.interpolation
+    cv = model.decision.cross_validation
+    reusable = (cv.scheme.kind == FOLD_KINDS[0] and cfg.uncorrected_subset is None
+                and cfg.corrected_subset is None)
+    if not (reusable and UNCORRECTED in cv.errors and method in cv.errors):
+        cv = cross_validate(model.working, model.destination, (UNCORRECTED, method),
+                            restoration=cfg.restoration, steps=cfg.steps,
+                            kriging=model.interpolators.get("kriging"),
+                            scheme=FoldScheme(FOLD_KINDS[0], len(model.working)))
+    if cv.unavailable:
+        name, why = next(iter(cv.unavailable.items()))
+        raise ValueError(f"leave-one-out of {name}: {why}")
+    tre_u, tre_c = cv.errors[UNCORRECTED], cv.errors[method]
     return TargetErrors(tre_u, tre_c, tre_c - tre_u)

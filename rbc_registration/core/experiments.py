@@ -14,9 +14,9 @@ from typing import Callable, Optional
 import numpy as np
 from numpy.typing import NDArray
 
+from .constants import INTERPOLATIONS, DecisionMode
 from .evaluation import TargetErrors, target_errors
 from .mismatch import pairwise_mismatch
-from .constants import INTERPOLATIONS
 from .model import ModelConfig, RbcModel, build_model
 from .synthetic import SyntheticCell
 
@@ -52,7 +52,9 @@ def _instantaneous(cell: SyntheticCell, config: ModelConfig, sigma: Optional[flo
         x = np.array([m[n] for m in cell.fiducial_measurements])
         t = np.array([m[n] for m in cell.target_measurements])
         for method in INTERPOLATIONS:
-            cfg = replace(config, interpolation=method, sigma=sigma)
+            # Many datasets: no decision (mode off), only TRE_u and TRE_c are studied here.
+            cfg = replace(config, interpolation=method, sigma=sigma, sigma_axis=None,
+                          decision=DecisionMode.OFF)
             model = build_model(x, cell.fiducial_truth, cfg)
             err = target_errors(model, t, cell.target_truth)
             tre[method][0][n], tre[method][1][n] = err.tre_u, err.tre_c
@@ -97,7 +99,8 @@ def run_cell(cell: SyntheticCell, config: Optional[ModelConfig] = None,
     if n_sets:
         # Common bin edges per stage, wide enough for the noisy instantaneous datasets.
         probe = np.array([m[0] for m in cell.fiducial_measurements])
-        probe_model = build_model(probe, y, replace(base, interpolation="paper"))
+        probe_model = build_model(probe, y, replace(base, interpolation="paper",
+                                                    decision=DecisionMode.OFF))
         for s, pts in enumerate(probe_model.restoration.stages(probe)):
             lim = 1.5 * max(np.abs(pairwise_mismatch(pts, y)).max(), np.abs(mismatch[s]).max())
             edges.append(np.linspace(-lim, lim, bins + 1))

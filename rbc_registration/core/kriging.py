@@ -43,12 +43,18 @@ from .validation import as_point_pairs, as_points
 FIT_MAX_FIDUCIALS = 1000
 #: The coarse grid search runs on a subsample of at most this many fiducials (same rule).
 SEARCH_MAX_FIDUCIALS = 300
-#: Grid of the coarse search: length scales from spacing / 2 to 3 x extent, and noise / signal
-#: variance ratios (a noise-free bias field ... pure noise).
+#: Grid of the coarse search: length scales from spacing / 2 to 3 x extent (twice the largest
+#: distance from the centroid), and noise / signal variance ratios (a noise-free bias field ...
+#: pure noise).
 GRID_LENGTHS = 8
 GRID_NOISE_RATIOS = tuple(10.0 ** k for k in range(-6, 3))
 #: Relative diagonal jitter (of s^2) that keeps the covariance numerically positive definite.
 JITTER = 1e-10
+#: L-BFGS-B stops when the nll changes by less than FTOL (relative) or the projected gradient is
+#: below GTOL: tight, so the optimum does not depend on rounding (a rigid motion of the frame or a
+#: reordering of the fiducials changes the hyper-parameters by < 1e-8 relative).
+FTOL = 1e-14
+GTOL = 1e-9
 _SQRT5 = math.sqrt(5.0)
 _FAILED = 1e300
 
@@ -65,8 +71,16 @@ class KrigingHyperparameters(NamedTuple):
 
 
 def _matern52(r: NDArray[np.float64], length: float) -> NDArray[np.float64]:
-    a = _SQRT5 * r / length
-    return (1.0 + a + a * a / 3.0) * np.exp(-a)
+    """Matérn 5/2 correlation of the distances ``r``, which are overwritten (two J x J arrays in
+    all: the covariance of 5,000 fiducials is built in well under a second)."""
+    a = r
+    a *= _SQRT5 / length
+    e = np.exp(-a)
+    a *= a + 3.0                                  # a (a + 3) / 3 + 1 = 1 + a + a^2 / 3
+    a *= 1.0 / 3.0
+    a += 1.0
+    a *= e
+    return a
 
 
 def _matern_terms(scaled: NDArray[np.float64], length: float
@@ -204,7 +218,7 @@ def _minimise(nll: MarginalLikelihood, theta0: NDArray[np.float64],
               bounds: list[tuple[float, float]]) -> scipy.optimize.OptimizeResult:
     lo, hi = np.array(bounds).T
     return scipy.optimize.minimize(nll, np.clip(theta0, lo, hi), jac=True, method="L-BFGS-B",
-                                   bounds=bounds)
+                                   bounds=bounds, options={"ftol": FTOL, "gtol": GTOL})
 
 
 def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
@@ -230,7 +244,8 @@ def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
     scale = max(float(np.mean(eps * eps)), 1e-300)
     near = cKDTree(x).query(x, k=2)[0][:, 1]
     spacing = float(np.min(near[near > 0])) if (near > 0).any() else 1.0
-    extent = max(float(np.linalg.norm(x.max(axis=0) - x.min(axis=0))), spacing)
+    # extent: twice the largest distance from the centroid (invariant to rotations of the frame)
+    extent = max(2.0 * float(np.linalg.norm(x - x.mean(axis=0), axis=1).max()), spacing)
     noise2 = None if sigma is None else float(sigma) ** 2 / d
     bounds = [(math.log(1e-8), math.log(1e3)), (math.log(spacing / 4), math.log(extent * 10))]
     if noise2 is None:
@@ -315,7 +330,10 @@ class KrigingInterpolator:
         return self.hyper.noise_std / math.sqrt(self.dim)
 
     def _cov(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
-        return self.hyper.signal_std ** 2 * _matern52(r, self.hyper.length_scale)
+        """Signal covariance at the distances ``r`` (overwritten)."""
+        k = _matern52(r, self.hyper.length_scale)
+        k *= self.hyper.signal_std ** 2
+        return k
 
     def _noise_var(self) -> NDArray[np.float64]:
         h = self.hyper

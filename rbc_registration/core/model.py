@@ -298,7 +298,7 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
                         restoration=config.restoration, steps=config.steps,
                         uncorrected_subset=config.uncorrected_subset,
                         corrected_subset=config.corrected_subset,
-                        kriging=interpolators.get("kriging"))
+                        kriging=interpolators.get("kriging") if "kriging" in candidates else None)
     cv = cv._replace(unavailable={**cv.unavailable, **failed})
     decision = decide(config.decision, cv, config.interpolation, assessment, config.rho_reject,
                       config.rho_apply)

@@ -58,3 +58,67 @@ def test_permuting_fiducials_changes_nothing(seed, perm_seed, interpolation):
     targets = np.random.default_rng(seed + 1).uniform(-0.6, 0.6, (5, 3))
     np.testing.assert_allclose(b.correct(targets).corrected, a.correct(targets).corrected,
                                atol=1e-7)
+
+
+def biased_cell(seed, bias, j=30):
+    rng = np.random.default_rng(seed)
+    y = rng.uniform(-1, 1, (j, 3))
+    x = y @ Rotation.from_rotvec(rng.normal(size=3)).as_matrix().T + rng.normal(size=3)
+    x += bias * np.sin(3 * y + rng.uniform(0, 6, 3)) + rng.normal(scale=2e-4, size=y.shape)
+    return x, y
+
+
+def same_decision(a, b, perm=None):
+    """Two decisions agree: choice, scores, tests and per-fiducial errors (permuted)."""
+    assert (a.method, a.apply, a.confident, a.folds) == (b.method, b.apply, b.confident, b.folds)
+    for ca, cb in zip(a.candidates, b.candidates):
+        assert ca.method == cb.method and ca.available == cb.available
+        np.testing.assert_allclose([cb.cv_median, cb.cv_rms, cb.cv_bound],
+                                   [ca.cv_median, ca.cv_rms, ca.cv_bound], rtol=1e-6)
+        if ca.p_value is not None:
+            assert cb.statistic == ca.statistic
+            np.testing.assert_allclose(cb.p_value, ca.p_value, rtol=1e-6, atol=1e-300)
+        ea = a.cross_validation.errors[ca.method]
+        eb = b.cross_validation.errors[cb.method]
+        np.testing.assert_allclose(eb, ea if perm is None else ea[perm], rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose([b.error_model.median_factor, b.error_model.bound_factor],
+                               [a.error_model.median_factor, a.error_model.bound_factor],
+                               rtol=1e-6)
+
+
+biases = st.sampled_from([0.0, 3e-4, 3e-3])
+
+
+@settings(max_examples=12, deadline=None)
+@given(seeds, seeds, biases, st.sampled_from(["working", "destination"]))
+def test_decision_is_invariant_to_rigid_motion_of_either_frame(seed, motion, bias, frame):
+    x, y = biased_cell(seed, bias)
+    targets = np.random.default_rng(seed + 1).uniform(-0.6, 0.6, (5, 3)) @ np.eye(3)
+    targets_w = build_model(x, y, ModelConfig(decision="off")).uncorrected.inverse_apply(targets)
+    r, t = rigid(motion)
+    a = build_model(x, y, ModelConfig())
+    if frame == "working":
+        b = build_model(x @ r.T + t, y, ModelConfig())
+        tb = b.correct(targets_w @ r.T + t)
+        dest_b = tb.destination
+    else:
+        b = build_model(x, y @ r.T + t, ModelConfig())
+        tb = b.correct(targets_w)
+        dest_b = (tb.destination - t) @ r                 # back into the original destination
+    same_decision(a.decision, b.decision)
+    ta = a.correct(targets_w)
+    np.testing.assert_allclose(dest_b, ta.destination, atol=1e-7)
+    np.testing.assert_allclose(tb.tre_bound, ta.tre_bound, rtol=1e-5)
+
+
+@settings(max_examples=12, deadline=None)
+@given(seeds, seeds, biases)
+def test_decision_is_invariant_to_permutation_of_the_fiducials(seed, perm_seed, bias):
+    x, y = biased_cell(seed, bias)
+    perm = np.random.default_rng(perm_seed).permutation(len(x))
+    a = build_model(x, y, ModelConfig())
+    b = build_model(x[perm], y[perm], ModelConfig())
+    same_decision(a.decision, b.decision, perm)
+    targets = a.uncorrected.inverse_apply(np.random.default_rng(seed).uniform(-0.6, 0.6, (5, 3)))
+    np.testing.assert_allclose(b.correct(targets).expected_tre, a.correct(targets).expected_tre,
+                               rtol=1e-6)

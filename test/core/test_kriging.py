@@ -1,0 +1,115 @@
+"""The fast kriging fit: analytic gradient, warm start, subsample rule, exact held-out predictions."""
+
+import math
+
+import numpy as np
+import pytest
+import scipy.optimize
+from scipy.spatial.transform import Rotation
+
+from rbc_registration.core import kriging
+from rbc_registration.core.kriging import (KrigingHyperparameters, KrigingInterpolator,
+                                           MarginalLikelihood, fit_hyperparameters)
+
+
+def field_cell(seed=0, j=80, d=3, noise=2e-3):
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0, 3, (j, d))
+    eps = 0.01 * np.sin(1.3 * x + rng.uniform(0, 6, d)) + rng.normal(scale=noise, size=x.shape)
+    return x, eps
+
+
+@pytest.mark.parametrize("noise2", [None, 4e-6], ids=["noise-fitted", "noise-given"])
+@pytest.mark.parametrize("d", [2, 3])
+def test_analytic_gradient_matches_finite_differences(noise2, d):
+    x, eps = field_cell(1, 50, d)
+    counts = np.random.default_rng(2).integers(1, 5, len(x)).astype(float)   # n_j repeats
+    nll = MarginalLikelihood(x, eps, 1.0 / counts, float(np.mean(eps ** 2)), noise2)
+    for theta in ([0.3, 0.2, -3.0], [-1.0, 1.5, -6.0], [2.0, -0.5, 0.5]):
+        theta = np.array(theta[:3 if noise2 is None else 2])
+        value, grad = nll(theta)
+        numeric = scipy.optimize.approx_fprime(theta, lambda t: nll(t)[0], 1e-6)
+        np.testing.assert_allclose(grad, numeric, rtol=1e-4, atol=1e-4 * abs(value))
+
+
+def test_the_likelihood_is_the_gaussian_log_density():
+    x, eps = field_cell(3, 30, 2)
+    nll = MarginalLikelihood(x, eps, np.ones(30), 1.0)
+    s2, length, noise2 = nll.unpack([math.log(2e-4), math.log(1.1), math.log(3e-6)])
+    r = np.linalg.norm(x[:, None] - x[None], axis=2)
+    a = math.sqrt(5) * r / length
+    k = s2 * (1 + a + a * a / 3) * np.exp(-a) + np.eye(30) * (noise2 + kriging.JITTER * s2)
+    want = sum(0.5 * e @ np.linalg.solve(k, e) + 0.5 * np.linalg.slogdet(k)[1] for e in eps.T)
+    assert nll(np.log([2e-4, 1.1, 3e-6]))[0] == pytest.approx(want, rel=1e-9)
+
+
+def test_fit_finds_the_noise_and_the_warm_start_the_same_optimum():
+    x, eps = field_cell(4, 120, 3)
+    cold = fit_hyperparameters(x, eps)
+    assert cold.noise_fitted and cold.noise_std == pytest.approx(2e-3 * math.sqrt(3), rel=0.3)
+    near = cold._replace(length_scale=cold.length_scale * 1.5, signal_std=cold.signal_std * 0.7)
+    warm = fit_hyperparameters(x, eps, initial=near)
+    for a, b in zip(warm[:3], cold[:3]):
+        assert a == pytest.approx(b, rel=1e-3)
+    # a misleading warm start (pure-noise optimum) is not reused blindly
+    bad = KrigingHyperparameters(1e-6, 1e-3, 1.0, True)
+    again = fit_hyperparameters(x, eps, initial=bad)
+    assert again.length_scale == pytest.approx(cold.length_scale, rel=1e-3)
+
+
+def test_given_sigma_is_kept_and_warm_start_is_used_by_the_interpolator():
+    x, eps = field_cell(5, 60, 2)
+    ip = KrigingInterpolator(x, eps, sigma=0.003)
+    assert ip.hyper.noise_std == 0.003 and not ip.hyper.noise_fitted
+    warm = KrigingInterpolator(x, eps, sigma=0.003, warm_start=ip.hyper)
+    assert warm.hyper.length_scale == pytest.approx(ip.hyper.length_scale, rel=1e-3)
+    assert ip.noise_axis_std == pytest.approx(0.003 / math.sqrt(2))
+
+
+def test_subsample_rule_is_spread_and_invariant():
+    rng = np.random.default_rng(6)
+    x = rng.uniform(0, 10, (3000, 3))
+    idx = kriging._subsample(x, 500)
+    assert len(idx) == 500 and len(np.unique(idx)) == 500
+    perm = rng.permutation(len(x))
+    np.testing.assert_array_equal(np.sort(perm[kriging._subsample(x[perm], 500)]), idx)
+    rot = Rotation.from_rotvec([0.3, -1.0, 2.0]).as_matrix()
+    np.testing.assert_array_equal(kriging._subsample(x @ rot.T + 7.0, 500), idx)
+    np.testing.assert_array_equal(kriging._subsample(x[:100], 500), np.arange(100))
+    # it spans the cell, not one corner
+    assert np.ptp(x[idx], axis=0).min() > 9.0
+
+
+def test_large_sets_fit_on_a_subsample(monkeypatch):
+    x, eps = field_cell(7, 400, 3)
+    full = fit_hyperparameters(x, eps)
+    monkeypatch.setattr(kriging, "FIT_MAX_FIDUCIALS", 200)
+    monkeypatch.setattr(kriging, "SEARCH_MAX_FIDUCIALS", 100)
+    sub = fit_hyperparameters(x, eps)
+    assert sub.length_scale == pytest.approx(full.length_scale, rel=0.3)
+    assert sub.noise_std == pytest.approx(full.noise_std, rel=0.3)
+
+
+def test_held_out_is_the_gp_refitted_without_the_group():
+    x, eps = field_cell(8, 40, 3)
+    counts = np.arange(40) % 3 + 1
+    ip = KrigingInterpolator(x, eps, repeats=counts)
+    groups = [np.array([5]), np.array([0, 17, 33])]
+    for s, (w, std) in zip(groups, ip.held_out(groups)):
+        keep = np.setdiff1d(np.arange(40), s)
+        sub = KrigingInterpolator(x[keep], eps[keep], repeats=counts[keep],
+                                  hyperparameters=ip.hyper)
+        res = sub(x[s])
+        np.testing.assert_allclose(w @ eps[keep], res.correction, rtol=1e-7, atol=1e-12)
+        noise = ip.hyper.noise_std ** 2 / 3 / counts[s]
+        np.testing.assert_allclose(std, np.sqrt(res.expected_error ** 2 + noise), rtol=1e-6)
+
+
+def test_fit_validation():
+    x, eps = field_cell(9, 20, 2)
+    with pytest.raises(ValueError, match="repeats must be 20 counts"):
+        fit_hyperparameters(x, eps, repeats=np.zeros(20))
+    with pytest.raises(ValueError, match="sigma must be finite"):
+        fit_hyperparameters(x, eps, sigma=math.inf)
+    with pytest.raises(ValueError, match="same shape"):
+        fit_hyperparameters(x, eps[:10])
