@@ -1,10 +1,11 @@
 """The paper's method as plain Python (numpy + scipy). Never imports rclpy.
 
 Modules: :mod:`registration` (rigid fit), :mod:`mismatch` (L, sigma_L), :mod:`restoration`
-(RBC restoration, eq. 4), :mod:`noise` (sigma, rho), :mod:`interpolation` and :mod:`kriging`
-(eq. 5-6), :mod:`model` (everything together), :mod:`evaluation` (TRE, leave-one-out),
-:mod:`synthetic` (cells modelled on the paper's experiments), :mod:`constants` (the closed sets
-and shared rules, numpy-free).
+(RBC restoration, eq. 4), :mod:`noise` (sigma in both conventions, rho), :mod:`interpolation`
+and :mod:`kriging` (eq. 5-6; :mod:`gp_fit` fits kriging), :mod:`crossval` and :mod:`decision`
+(whether and how to correct, expected error), :mod:`model` (everything together),
+:mod:`evaluation` (TRE, leave-one-out), :mod:`synthetic` (cells modelled on the paper's
+experiments), :mod:`constants` (the closed sets and shared rules, numpy-free).
 
 The names below are loaded on first use, so importing :mod:`.constants` alone (as the
 command-line parser does) does not load numpy or scipy.
@@ -16,7 +17,8 @@ _EXPORTS = {"TargetErrors": "evaluation", "leave_one_out": "evaluation",
             "target_errors": "evaluation", "ModelConfig": "model", "RbcModel": "model",
             "TargetCorrections": "model", "build_model": "model", "Registration": "registration",
             "rigid_fit": "registration", "RestorationResult": "restoration",
-            "restore_rigid_body": "restoration"}
+            "restore_rigid_body": "restoration", "Decision": "decision",
+            "DecisionMode": "constants", "CANDIDATES": "constants"}
 
 __all__ = sorted(_EXPORTS)
 

@@ -4,289 +4,30 @@ Each component of eps is modelled as a zero-mean Gaussian process over the worki
 Matérn 5/2 covariance s^2 k(r / l), observed at the fiducials with noise variance
 sigma^2 / (d n_j) per axis (sigma as in :func:`noise.estimate_sigma`, n_j repeats averaged into
 fiducial j). The signal variance s^2 and length scale l (and sigma when it is unknown) are fitted to
-the corrections by maximising the marginal likelihood, shared by the d components. The posterior
-mean shrinks corrections toward zero where noise dominates the field (rho < 1), so correcting does
-not make registration worse; where the bias dominates it follows the fiducials closely. The
-posterior standard deviation is reported as the expected error of the correction.
-
-The fit (:func:`fit_hyperparameters`) is fast:
-
-- the distance matrix is computed once per fit, and the Matérn terms once per length scale;
-- a coarse grid over (l, noise / signal) with s^2 profiled out in closed form picks the basin
-  (one Cholesky factorisation per grid point), then L-BFGS-B refines it with the analytic gradient
-  of the log marginal likelihood (Rasmussen & Williams 2006, eq. 5.9);
-- a warm start (the previous model's hyper-parameters, e.g. from the node) is refined, not reused
-  blindly: the grid's best point is refined as well when it scores better;
-- above :data:`FIT_MAX_FIDUCIALS` fiducials the hyper-parameters are fitted on a subsample of that
-  size (grid on :data:`SEARCH_MAX_FIDUCIALS`); the posterior always conditions on all fiducials.
+the corrections by maximising the marginal likelihood, shared by the d components
+(:mod:`.gp_fit`: analytic gradients, warm start, a subsample for large J). The posterior mean
+shrinks corrections toward zero where noise dominates the field (rho < 1), so correcting does not
+make registration worse; where the bias dominates it follows the fiducials closely. The posterior
+standard deviation is reported as the expected error of the correction.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 import scipy.linalg
-import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import lapack
-from scipy.spatial import cKDTree
-from scipy.spatial.distance import cdist, pdist, squareform
+from scipy.spatial.distance import cdist
 
+from .gp_fit import (JITTER, KrigingHyperparameters, MarginalLikelihood, fit_hyperparameters,
+                     inverse_from_cholesky, matern52, repeat_counts)
 from .interpolation import HullTest, Interpolated
 from .validation import as_point_pairs, as_points
 
-#: Above this many fiducials the hyper-parameters are fitted on a subsample of this many (the
-#: fiducials ranked by distance from their centroid, every k-th: spread over the whole cell,
-#: independent of their order and of rigid motions). The fit costs O(n^3) per evaluation.
-FIT_MAX_FIDUCIALS = 1000
-#: The coarse grid search runs on a subsample of at most this many fiducials (same rule).
-SEARCH_MAX_FIDUCIALS = 300
-#: Grid of the coarse search: length scales from spacing / 2 to 3 x extent (twice the largest
-#: distance from the centroid), and noise / signal variance ratios (a noise-free bias field ...
-#: pure noise).
-GRID_LENGTHS = 8
-GRID_NOISE_RATIOS = tuple(10.0 ** k for k in range(-6, 3))
-#: Relative diagonal jitter (of s^2) that keeps the covariance numerically positive definite.
-JITTER = 1e-10
-#: L-BFGS-B stops when the nll changes by less than FTOL (relative) or the projected gradient is
-#: below GTOL: tight, so the optimum does not depend on rounding (a rigid motion of the frame or a
-#: reordering of the fiducials changes the hyper-parameters by < 1e-8 relative).
-FTOL = 1e-14
-GTOL = 1e-9
-_SQRT5 = math.sqrt(5.0)
-_FAILED = 1e300
-
-
-class KrigingHyperparameters(NamedTuple):
-    """Fitted GP hyper-parameters (units of the points): ``signal_std`` s (per axis),
-    ``length_scale`` l, ``noise_std`` sigma of a single measurement (all axes, as
-    :func:`noise.estimate_sigma`), and whether sigma was fitted."""
-
-    signal_std: float
-    length_scale: float
-    noise_std: float
-    noise_fitted: bool
-
-
-def _matern52(r: NDArray[np.float64], length: float) -> NDArray[np.float64]:
-    """Matérn 5/2 correlation of the distances ``r``, which are overwritten (two J x J arrays in
-    all: the covariance of 5,000 fiducials is built in well under a second)."""
-    a = r
-    a *= _SQRT5 / length
-    e = np.exp(-a)
-    a *= a + 3.0                                  # a (a + 3) / 3 + 1 = 1 + a + a^2 / 3
-    a *= 1.0 / 3.0
-    a += 1.0
-    a *= e
-    return a
-
-
-def _matern_terms(scaled: NDArray[np.float64], length: float
-                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """a = sqrt(5) r / l, exp(-a) and the Matérn 5/2 correlation (1 + a + a^2/3) exp(-a)."""
-    a = scaled / length
-    e = np.exp(-a)
-    m = a * (1.0 / 3.0)
-    m += 1.0
-    m *= a
-    m += 1.0
-    m *= e
-    return a, e, m
-
-
-def _cholesky(k: NDArray[np.float64]) -> Optional[NDArray[np.float64]]:
-    """Lower Cholesky factor of the symmetric matrix ``k`` (overwritten), None if not PD."""
-    c, info = lapack.dpotrf(k.T, lower=1, clean=1, overwrite_a=1)   # k.T: Fortran view, no copy
-    return c if info == 0 else None
-
-
-def _inverse(c: NDArray[np.float64]) -> NDArray[np.float64]:
-    """K^-1 (full, symmetric) from the lower Cholesky factor of K."""
-    inv, info = lapack.dpotri(c, lower=1)
-    if info != 0:
-        raise np.linalg.LinAlgError("covariance is singular")
-    low = np.tril(inv)
-    return low + np.tril(low, -1).T
-
-
-def _subsample(points: NDArray[np.float64], size: int) -> NDArray[np.intp]:
-    """Indices of at most ``size`` fiducials spread over the cell: ranked by distance from the
-    centroid (stable), every k-th. Invariant to rigid motion and to the order of the points."""
-    j = len(points)
-    if j <= size:
-        return np.arange(j)
-    radius = np.linalg.norm(points - points.mean(axis=0), axis=1)
-    order = np.argsort(radius, kind="stable")
-    return np.sort(order[np.unique(np.linspace(0, j - 1, size).round().astype(np.intp))])
-
-
-class MarginalLikelihood:
-    """Negative log marginal likelihood of the corrections and its gradient (R&W eq. 2.30, 5.9).
-
-    nll = 1/2 tr(E^T K^-1 E) + d/2 log|K| (constant dropped), the d components sharing
-    K = s^2 (M + jitter I) + noise^2 diag(1 / n_j), M the Matérn 5/2 correlation.
-    theta = (log(s^2 / v), log l, log(noise^2 / v)) with v the mean squared correction;
-    noise^2 (per axis) is fixed when given. The gradient is 1/2 tr((d K^-1 - a a^T) dK/dtheta),
-    a = K^-1 E. The scaled distances sqrt(5) r are computed once.
-    """
-
-    def __init__(self, points: NDArray[np.float64], corrections: NDArray[np.float64],
-                 inv_n: NDArray[np.float64], scale: float,
-                 noise2: Optional[float] = None) -> None:
-        self.eps = corrections
-        self.inv_n = inv_n
-        self.scale = scale
-        self.noise2 = noise2
-        self.scaled = _SQRT5 * squareform(pdist(points))
-        self.evaluations = 0
-
-    def unpack(self, theta: Sequence[float]) -> tuple[float, float, float]:
-        """(s^2, l, noise^2 per axis) of theta."""
-        s2 = self.scale * math.exp(theta[0])
-        noise2 = self.scale * math.exp(theta[2]) if self.noise2 is None else self.noise2
-        return s2, math.exp(theta[1]), noise2
-
-    def _factor(self, m: NDArray[np.float64], s2: float, noise2: float
-                ) -> Optional[NDArray[np.float64]]:
-        k = s2 * m
-        k.flat[::len(k) + 1] += noise2 * self.inv_n + JITTER * s2
-        return _cholesky(k)
-
-    def _data_fit(self, c: NDArray[np.float64]) -> tuple[NDArray[np.float64], float, float]:
-        alpha, _ = lapack.dpotrs(c, self.eps, lower=1)
-        return alpha, float(np.sum(self.eps * alpha)), 2.0 * float(np.sum(np.log(np.diag(c))))
-
-    def __call__(self, theta: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-        """nll and its gradient with respect to theta."""
-        self.evaluations += 1
-        s2, length, noise2 = self.unpack(theta)
-        a, e, m = _matern_terms(self.scaled, length)
-        c = self._factor(m, s2, noise2)
-        if c is None:
-            return _FAILED, np.zeros(len(theta))
-        alpha, quad, logdet = self._data_fit(c)
-        d = self.eps.shape[1]
-        b = d * _inverse(c)
-        b -= alpha @ alpha.T
-        grad = [0.5 * s2 * (float(np.vdot(b, m)) + JITTER * float(np.trace(b)))]
-        a2 = a * a                                   # dM/dlog l = a^2 (1 + a) exp(-a) / 3
-        a2 *= 1.0 + a
-        a2 *= e
-        grad.append(0.5 * s2 / 3.0 * float(np.vdot(b, a2)))
-        if self.noise2 is None:
-            grad.append(0.5 * noise2 * float(np.diag(b) @ self.inv_n))
-        return 0.5 * quad + 0.5 * d * logdet, np.array(grad)
-
-    def grid_search(self, lengths: Sequence[float]) -> NDArray[np.float64]:
-        """The best theta over ``lengths`` x :data:`GRID_NOISE_RATIOS` (noise fitted: s^2 in
-        closed form, s^2 = tr(E^T C^-1 E) / (J d) with C = K / s^2) or over ``lengths`` x signal
-        variances (noise given). One Matérn evaluation per length, one Cholesky per point."""
-        j, d = self.eps.shape
-        best, best_theta = math.inf, None
-        for length in lengths:
-            m = _matern_terms(self.scaled, length)[2]
-            for ratio in GRID_NOISE_RATIOS:
-                if self.noise2 is None:      # C = M + ratio diag(1/n_j); profile s^2
-                    c = self._factor(m, 1.0, ratio)
-                    if c is None:
-                        continue
-                    _, quad, logdet = self._data_fit(c)
-                    s2 = max(quad / (j * d), 1e-300)
-                    value = 0.5 * j * d * (1.0 + math.log(s2)) + 0.5 * d * logdet
-                    noise2 = ratio * s2
-                else:                         # noise fixed: grid over s^2 = noise^2 / ratio
-                    s2 = self.noise2 / ratio if self.noise2 > 0 else self.scale * ratio
-                    c = self._factor(m, s2, self.noise2)
-                    if c is None:
-                        continue
-                    _, quad, logdet = self._data_fit(c)
-                    value = 0.5 * quad + 0.5 * d * logdet
-                    noise2 = self.noise2
-                if value < best:
-                    best = value
-                    best_theta = [math.log(s2 / self.scale), math.log(length)]
-                    if self.noise2 is None:
-                        best_theta.append(math.log(max(noise2, 1e-300) / self.scale))
-        if best_theta is None:
-            raise ValueError("kriging: no covariance of the search grid is positive definite")
-        return np.array(best_theta)
-
-
-def _minimise(nll: MarginalLikelihood, theta0: NDArray[np.float64],
-              bounds: list[tuple[float, float]]) -> scipy.optimize.OptimizeResult:
-    lo, hi = np.array(bounds).T
-    return scipy.optimize.minimize(nll, np.clip(theta0, lo, hi), jac=True, method="L-BFGS-B",
-                                   bounds=bounds, options={"ftol": FTOL, "gtol": GTOL})
-
-
-def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
-                        sigma: Optional[float] = None, repeats: Optional[Sequence[int]] = None,
-                        initial: Optional[KrigingHyperparameters] = None
-                        ) -> KrigingHyperparameters:
-    """Maximum marginal likelihood hyper-parameters of the correction field (module docstring).
-
-    :param points: fiducials in the working frame (J, d).
-    :param corrections: eps at the fiducials (J, d).
-    :param sigma: noise sigma of one measurement (all axes); ``None``: fitted as well.
-    :param repeats: measurements averaged into each fiducial, n_j (default 1 each).
-    :param initial: a warm start, e.g. the previous model's hyper-parameters: refined from there
-        (and compared with the coarse grid's best point), never reused as they are.
-    :return: :class:`KrigingHyperparameters`.
-    :raises ValueError: on bad input.
-    """
-    x, eps = as_point_pairs(points, corrections, min_count=2)
-    j, d = x.shape
-    inv_n = 1.0 / _repeat_counts(repeats, j)
-    if sigma is not None and (not math.isfinite(sigma) or sigma < 0):
-        raise ValueError(f"sigma must be finite and >= 0, got {sigma}")
-    scale = max(float(np.mean(eps * eps)), 1e-300)
-    near = cKDTree(x).query(x, k=2)[0][:, 1]
-    spacing = float(np.min(near[near > 0])) if (near > 0).any() else 1.0
-    # extent: twice the largest distance from the centroid (invariant to rotations of the frame)
-    extent = max(2.0 * float(np.linalg.norm(x - x.mean(axis=0), axis=1).max()), spacing)
-    noise2 = None if sigma is None else float(sigma) ** 2 / d
-    bounds = [(math.log(1e-8), math.log(1e3)), (math.log(spacing / 4), math.log(extent * 10))]
-    if noise2 is None:
-        bounds.append((math.log(1e-12), math.log(1e2)))
-
-    def likelihood(idx: NDArray[np.intp]) -> MarginalLikelihood:
-        return MarginalLikelihood(x[idx], eps[idx], inv_n[idx], scale, noise2)
-
-    fit_idx = _subsample(x, FIT_MAX_FIDUCIALS)
-    search_idx = _subsample(x, SEARCH_MAX_FIDUCIALS)
-    fit = likelihood(fit_idx)
-    search = fit if len(search_idx) == len(fit_idx) else likelihood(search_idx)
-    grid = search.grid_search(np.geomspace(spacing / 2, extent * 3, GRID_LENGTHS))
-    if initial is not None:
-        best = _minimise(fit, _theta(initial, scale, noise2, d), bounds)
-        if fit(grid)[0] < best.fun:           # the warm start sits in a worse basin
-            other = _minimise(fit, grid, bounds)
-            best = other if other.fun < best.fun else best
-    else:
-        best = _minimise(search, grid, bounds)
-        if search is not fit:
-            best = _minimise(fit, best.x, bounds)
-    s2, length, n2 = fit.unpack(best.x)
-    return KrigingHyperparameters(math.sqrt(s2), length, math.sqrt(n2 * d), noise2 is None)
-
-
-def _theta(h: KrigingHyperparameters, scale: float, noise2: Optional[float],
-           dim: int) -> NDArray[np.float64]:
-    """theta of :class:`MarginalLikelihood` for given hyper-parameters (a warm start)."""
-    theta = [2 * math.log(max(h.signal_std, 1e-150)) - math.log(scale),
-             math.log(max(h.length_scale, 1e-300))]
-    if noise2 is None:                      # noise_std is all axes; theta holds it per axis
-        theta.append(2 * math.log(max(h.noise_std, 1e-150)) - math.log(dim * scale))
-    return np.array(theta)
-
-
-def _repeat_counts(repeats: Optional[Sequence[int]], j: int) -> NDArray[np.float64]:
-    n = np.ones(j) if repeats is None else np.asarray(repeats, dtype=np.float64)
-    if n.shape != (j,) or not np.all(np.isfinite(n)) or (n < 1).any():
-        raise ValueError(f"repeats must be {j} counts >= 1, got {repeats!r}")
-    return n
+__all__ = ["KrigingHyperparameters", "KrigingInterpolator", "MarginalLikelihood",
+           "fit_hyperparameters"]
 
 
 class KrigingInterpolator:
@@ -312,7 +53,7 @@ class KrigingInterpolator:
         if j < self.dim + 1:
             raise ValueError(f"kriging in {self.dim}D needs at least {self.dim + 1} fiducials, "
                              f"got {j}")
-        n = _repeat_counts(repeats, j)
+        n = repeat_counts(repeats, j)
         if sigma is not None and (not math.isfinite(sigma) or sigma < 0):
             raise ValueError(f"sigma must be finite and >= 0, got {sigma}")
         self.inv_n = 1.0 / n
@@ -321,8 +62,8 @@ class KrigingInterpolator:
                                                             n, warm_start)
         k = self._cov(cdist(self.points, self.points))
         k.flat[::j + 1] += self._noise_var()
-        self.chol = scipy.linalg.cho_factor(k, lower=True, overwrite_a=True)
-        self.alpha = scipy.linalg.cho_solve(self.chol, self.corrections)
+        self.chol = scipy.linalg.cho_factor(k, lower=True, overwrite_a=True, check_finite=False)
+        self.alpha = scipy.linalg.cho_solve(self.chol, self.corrections, check_finite=False)
 
     @property
     def noise_axis_std(self) -> float:
@@ -331,7 +72,7 @@ class KrigingInterpolator:
 
     def _cov(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
         """Signal covariance at the distances ``r`` (overwritten)."""
-        k = _matern52(r, self.hyper.length_scale)
+        k = matern52(r, self.hyper.length_scale)
         k *= self.hyper.signal_std ** 2
         return k
 
@@ -350,7 +91,7 @@ class KrigingInterpolator:
         W = -P_SS^-1 P_S,rest, covariance P_SS^-1 (the GP refitted without S, same
         hyper-parameters).
         """
-        p = _inverse(self.chol[0] if self.chol[1] else self.chol[0].T)
+        p = inverse_from_cholesky(self.chol[0] if self.chol[1] else self.chol[0].T)
         out = []
         for group in groups:
             s = np.asarray(group, dtype=np.intp)
@@ -365,7 +106,7 @@ class KrigingInterpolator:
         t = as_points(targets, "targets", self.dim)
         ks = self._cov(cdist(t, self.points))
         mean = ks @ self.alpha
-        v = scipy.linalg.solve_triangular(self.chol[0], ks.T, lower=True)
+        v = scipy.linalg.solve_triangular(self.chol[0], ks.T, lower=True, check_finite=False)
         var = self.hyper.signal_std ** 2 - np.sum(v * v, axis=0)
         inside = self.hull.simplices(t) >= 0
         return Interpolated(mean, inside, np.sqrt(np.maximum(var, 0.0)))

@@ -7,9 +7,10 @@ import pytest
 import scipy.optimize
 from scipy.spatial.transform import Rotation
 
-from rbc_registration.core import kriging
-from rbc_registration.core.kriging import (KrigingHyperparameters, KrigingInterpolator,
-                                           MarginalLikelihood, fit_hyperparameters)
+from rbc_registration.core import gp_fit
+from rbc_registration.core.gp_fit import (KrigingHyperparameters, MarginalLikelihood,
+                                          fit_hyperparameters)
+from rbc_registration.core.kriging import KrigingInterpolator
 
 
 def field_cell(seed=0, j=80, d=3, noise=2e-3):
@@ -38,7 +39,7 @@ def test_the_likelihood_is_the_gaussian_log_density():
     s2, length, noise2 = nll.unpack([math.log(2e-4), math.log(1.1), math.log(3e-6)])
     r = np.linalg.norm(x[:, None] - x[None], axis=2)
     a = math.sqrt(5) * r / length
-    k = s2 * (1 + a + a * a / 3) * np.exp(-a) + np.eye(30) * (noise2 + kriging.JITTER * s2)
+    k = s2 * (1 + a + a * a / 3) * np.exp(-a) + np.eye(30) * (noise2 + gp_fit.JITTER * s2)
     want = sum(0.5 * e @ np.linalg.solve(k, e) + 0.5 * np.linalg.slogdet(k)[1] for e in eps.T)
     assert nll(np.log([2e-4, 1.1, 3e-6]))[0] == pytest.approx(want, rel=1e-9)
 
@@ -69,13 +70,13 @@ def test_given_sigma_is_kept_and_warm_start_is_used_by_the_interpolator():
 def test_subsample_rule_is_spread_and_invariant():
     rng = np.random.default_rng(6)
     x = rng.uniform(0, 10, (3000, 3))
-    idx = kriging._subsample(x, 500)
+    idx = gp_fit._subsample(x, 500)
     assert len(idx) == 500 and len(np.unique(idx)) == 500
     perm = rng.permutation(len(x))
-    np.testing.assert_array_equal(np.sort(perm[kriging._subsample(x[perm], 500)]), idx)
+    np.testing.assert_array_equal(np.sort(perm[gp_fit._subsample(x[perm], 500)]), idx)
     rot = Rotation.from_rotvec([0.3, -1.0, 2.0]).as_matrix()
-    np.testing.assert_array_equal(kriging._subsample(x @ rot.T + 7.0, 500), idx)
-    np.testing.assert_array_equal(kriging._subsample(x[:100], 500), np.arange(100))
+    np.testing.assert_array_equal(gp_fit._subsample(x @ rot.T + 7.0, 500), idx)
+    np.testing.assert_array_equal(gp_fit._subsample(x[:100], 500), np.arange(100))
     # it spans the cell, not one corner
     assert np.ptp(x[idx], axis=0).min() > 9.0
 
@@ -83,8 +84,8 @@ def test_subsample_rule_is_spread_and_invariant():
 def test_large_sets_fit_on_a_subsample(monkeypatch):
     x, eps = field_cell(7, 400, 3)
     full = fit_hyperparameters(x, eps)
-    monkeypatch.setattr(kriging, "FIT_MAX_FIDUCIALS", 200)
-    monkeypatch.setattr(kriging, "SEARCH_MAX_FIDUCIALS", 100)
+    monkeypatch.setattr(gp_fit, "FIT_MAX_FIDUCIALS", 200)
+    monkeypatch.setattr(gp_fit, "SEARCH_MAX_FIDUCIALS", 100)
     sub = fit_hyperparameters(x, eps)
     assert sub.length_scale == pytest.approx(full.length_scale, rel=0.3)
     assert sub.noise_std == pytest.approx(full.noise_std, rel=0.3)

@@ -69,21 +69,23 @@ def biased_cell(seed, bias, j=30):
 
 
 def same_decision(a, b, perm=None):
-    """Two decisions agree: choice, scores, tests and per-fiducial errors (permuted)."""
+    """Two decisions agree: choice, scores, tests and per-fiducial errors (permuted). Numbers
+    agree to 1e-5 relative: kriging's hyper-parameters are optimised to a tolerance (gp_fit.FTOL),
+    and rounding moves the optimum within it."""
     assert (a.method, a.apply, a.confident, a.folds) == (b.method, b.apply, b.confident, b.folds)
     for ca, cb in zip(a.candidates, b.candidates):
         assert ca.method == cb.method and ca.available == cb.available
         np.testing.assert_allclose([cb.cv_median, cb.cv_rms, cb.cv_bound],
-                                   [ca.cv_median, ca.cv_rms, ca.cv_bound], rtol=1e-6)
+                                   [ca.cv_median, ca.cv_rms, ca.cv_bound], rtol=1e-5)
         if ca.p_value is not None:
             assert cb.statistic == ca.statistic
-            np.testing.assert_allclose(cb.p_value, ca.p_value, rtol=1e-6, atol=1e-300)
+            np.testing.assert_allclose(cb.p_value, ca.p_value, rtol=1e-5, atol=1e-300)
         ea = a.cross_validation.errors[ca.method]
         eb = b.cross_validation.errors[cb.method]
-        np.testing.assert_allclose(eb, ea if perm is None else ea[perm], rtol=1e-6, atol=1e-12)
+        np.testing.assert_allclose(eb, ea if perm is None else ea[perm], rtol=1e-5, atol=1e-12)
     np.testing.assert_allclose([b.error_model.median_factor, b.error_model.bound_factor],
                                [a.error_model.median_factor, a.error_model.bound_factor],
-                               rtol=1e-6)
+                               rtol=1e-5)
 
 
 biases = st.sampled_from([0.0, 3e-4, 3e-3])
@@ -121,4 +123,4 @@ def test_decision_is_invariant_to_permutation_of_the_fiducials(seed, perm_seed, 
     same_decision(a.decision, b.decision, perm)
     targets = a.uncorrected.inverse_apply(np.random.default_rng(seed).uniform(-0.6, 0.6, (5, 3)))
     np.testing.assert_allclose(b.correct(targets).expected_tre, a.correct(targets).expected_tre,
-                               rtol=1e-6)
+                               rtol=1e-5)
