@@ -269,11 +269,11 @@ def decide(mode: DecisionMode, cv: CrossValidation, configured: str, assessment:
     elif mode is DecisionMode.RHO:
         method, reason, confident = _rho_choice(assessment, configured, rho_reject, rho_apply)
     elif mode is DecisionMode.ON:
-        method, reason, confident = configured, (
-            f"Corrections are on (decision mode 'on'): {configured} corrections are applied."), True
+        method, confident = configured, True
+        reason = f"Corrections are on (decision mode 'on'): {configured} corrections are applied."
     else:
-        method, reason, confident = UNCORRECTED, (
-            "Corrections are off (decision mode 'off'): the uncorrected registration is used."), True
+        method, confident = UNCORRECTED, True
+        reason = "Corrections are off (decision mode 'off'): the uncorrected registration is used."
     return Decision(mode, method, method != UNCORRECTED, reason, confident, tuple(scores),
                     cv.scheme, SIGNIFICANCE, assessment.rho, assessment.recommendation,
                     error_model(cv, method), cv)

@@ -1,4 +1,4 @@
-"""The fast kriging fit: analytic gradient, warm start, subsample rule, exact held-out predictions."""
+"""The fast kriging fit: analytic gradient, warm start, subsample rule, exact held-out values."""
 
 import math
 
