@@ -49,7 +49,8 @@ def cell(j: int, dim: int, seed: int = 0):
     return x, y
 
 
-def best(fn, repeat: int, budget: float = 20.0) -> float:
+def timings(fn, repeat: int, budget: float = 20.0) -> list[float]:
+    """Wall-clock times of up to ``repeat`` calls of ``fn`` (stopping after ``budget`` s)."""
     times = []
     start = time.perf_counter()
     for _ in range(repeat):
@@ -58,7 +59,11 @@ def best(fn, repeat: int, budget: float = 20.0) -> float:
         times.append(time.perf_counter() - t)
         if time.perf_counter() - start > budget:
             break
-    return min(times)
+    return times
+
+
+def best(fn, repeat: int, budget: float = 20.0) -> float:
+    return min(timings(fn, repeat, budget))
 
 
 def min_med(values, show=None) -> str:

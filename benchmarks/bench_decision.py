@@ -29,6 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
+from bench_core import timings  # noqa: E402
 from rbc_registration.core.model import ModelConfig, build_model  # noqa: E402
 from rbc_registration.core.synthetic import make_cell  # noqa: E402
 
@@ -49,18 +50,6 @@ def ra_cell(seed: int = 0):
     return np.array([m[0] for m in cell.fiducial_measurements]), cell.fiducial_truth
 
 
-def timed(fn, repeat: int, budget: float) -> list[float]:
-    times: list[float] = []
-    start = time.perf_counter()
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-        if time.perf_counter() - start > budget:
-            break
-    return times
-
-
 def fmt(times: list[float]) -> str:
     def one(s: float) -> str:
         return f"{s * 1e3:.3g} ms" if s < 1 else f"{s:.3g} s"
@@ -73,7 +62,7 @@ def alternate(variants: dict, repeat: int, budget: float) -> dict[str, list[floa
     start = time.perf_counter()
     for _ in range(repeat):
         for name, fn in variants.items():
-            out[name] += timed(fn, 1, budget)
+            out[name] += timings(fn, 1, budget)
         if time.perf_counter() - start > budget:
             break
     return out
@@ -108,11 +97,11 @@ def decision_rows(repeat: int, budget: float) -> list[str]:
              ("RA-like", *ra_cell(0), 2), ("volume", *volume_cell(1000), 3)]
     for name, x, y, d in cells:
         cfg = ModelConfig(dimension=d)
-        res = timed(lambda: build_model(x, y, cfg), repeat, budget)
+        res = timings(lambda: build_model(x, y, cfg), repeat, budget)
         model = build_model(x, y, cfg)
         one = x[:1] + 1.0
         model.correct(one)
-        t_one = min(timed(lambda: model.correct(one), 2000, 5.0))
+        t_one = min(timings(lambda: model.correct(one), 2000, 5.0))
         rows.append(f"| {name} | {len(x)} | {d} | {model.decision.folds.describe()} | "
                     f"{fmt(res)} | {model.decision.method} | {t_one * 1e6:.0f} µs |")
     return rows
