@@ -45,7 +45,7 @@ JITTER = 1e-10
 #: below GTOL: tight, so the optimum does not depend on rounding (a rigid motion of the frame or a
 #: reordering of the fiducials changes the hyper-parameters by < 1e-6 relative).
 FTOL = 1e-11
-GTOL = 1e-7
+GTOL = 1e-5
 _SQRT5 = math.sqrt(5.0)
 _FAILED = 1e300
 
@@ -265,14 +265,14 @@ def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
     search = fit if len(search_idx) == len(fit_idx) else likelihood(search_idx)
     grid = search.grid_search(np.geomspace(spacing / 2, extent * 3, GRID_LENGTHS))
     if initial is not None:
-        best = _minimise(fit, _theta(initial, scale, noise2, d), bounds)
-        if fit(grid)[0] < best.fun:           # the warm start sits in a worse basin
-            other = _minimise(fit, grid, bounds)
+        best = _minimise(search, _theta(initial, scale, noise2, d), bounds)
+        if search(grid)[0] < best.fun:        # the warm start sits in a worse basin
+            other = _minimise(search, grid, bounds)
             best = other if other.fun < best.fun else best
     else:
         best = _minimise(search, grid, bounds)
-        if search is not fit:
-            best = _minimise(fit, best.x, bounds)
+    if search is not fit:
+        best = _minimise(fit, best.x, bounds)
     s2, length, n2 = fit.unpack(best.x)
     return KrigingHyperparameters(math.sqrt(s2), length, math.sqrt(n2 * d), noise2 is None)
 
