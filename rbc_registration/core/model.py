@@ -14,97 +14,29 @@ target corrections::
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Mapping, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import (CANDIDATES, INTERPOLATIONS, UNCORRECTED, DecisionMode,
-                        check_rho_thresholds)
+from .config import ModelConfig
+from .constants import CANDIDATES, INTERPOLATIONS, UNCORRECTED, DecisionMode
 from .crossval import cross_validate
 from .decision import Decision, decide
 from .interpolation import Interpolated, PaperInterpolator
 from .kriging import KrigingHyperparameters, KrigingInterpolator
-from .noise import RepeatStats, assess, axis_sigma, point_sigma, resolve_repeat_stats
+from .noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
 from .registration import Registration, rigid_fit
-from .restoration import METHODS, RestorationResult, restore_rigid_body
+from .restoration import RestorationResult, restore_rigid_body
 from .validation import as_point_pairs, as_points, check_subset
 
+__all__ = ["INTERPOLATIONS", "Interpolator", "ModelConfig", "RbcModel", "TargetAnswer",
+           "TargetCorrections", "build_model"]
+
 Interpolator = Union[PaperInterpolator, KrigingInterpolator]
-
-
-def _check_length(name: str, value: Optional[float]) -> None:
-    if value is not None and (not isinstance(value, (int, float)) or not math.isfinite(value)
-                              or value <= 0):
-        raise ValueError(f"{name} must be a positive finite length or None, got {value!r}")
-
-
-@dataclass(frozen=True)
-class ModelConfig:
-    """How a model is built. Lengths are in the unit of the points (metres in ROS).
-
-    :ivar dimension: 2 (x, y as in the paper) or 3.
-    :ivar restoration: ``"iterative"`` (the paper's Gauss-Newton steps) or ``"closed-form"``.
-    :ivar steps: iterative steps (paper: 2).
-    :ivar interpolation: ``"paper"`` (tetrahedron / 8 surrounding fiducials) or ``"kriging"``:
-        what ``TargetCorrections.corrected`` uses, and what modes ``rho`` and ``on`` apply.
-    :ivar sigma: known noise: RMS distance of one measurement from the true point, all axes
-        (:mod:`.noise`); ``None``: from repeats, or ``sigma_axis``.
-    :ivar sigma_axis: known noise per axis (sigma / sqrt(d)); give ``sigma`` or this, not both.
-    :ivar decision: :class:`~.constants.DecisionMode` (or its string): ``cv`` (default,
-        cross-validated, needs no sigma), ``rho`` (the paper's rule), ``on``, ``off``.
-    :ivar rho_reject: rho below which correcting is not recommended (paper: 1).
-    :ivar rho_apply: rho from which correcting is recommended (paper: 2.5).
-    :ivar uncorrected_subset: indices of the fiducials the uncorrected registration is fitted to
-        (the paper uses 5); ``None``: all.
-    :ivar corrected_subset: indices for the corrected registration (the paper uses 3); ``None``: all.
-    """
-
-    dimension: int = 3
-    restoration: str = "iterative"
-    steps: int = 2
-    interpolation: str = "paper"
-    sigma: Optional[float] = None
-    sigma_axis: Optional[float] = None
-    decision: DecisionMode = DecisionMode.CV
-    rho_reject: float = 1.0
-    rho_apply: float = 2.5
-    uncorrected_subset: Optional[tuple[int, ...]] = None
-    corrected_subset: Optional[tuple[int, ...]] = None
-
-    def __post_init__(self) -> None:
-        if self.dimension not in (2, 3):
-            raise ValueError(f"dimension must be 2 or 3, got {self.dimension!r}")
-        if self.restoration not in METHODS:
-            raise ValueError(f"restoration must be one of {METHODS}, got {self.restoration!r}")
-        if not isinstance(self.steps, int) or isinstance(self.steps, bool) or self.steps < 1:
-            raise ValueError(f"steps must be a positive integer, got {self.steps!r}")
-        if self.interpolation not in INTERPOLATIONS:
-            raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, "
-                             f"got {self.interpolation!r}")
-        _check_length("sigma", self.sigma)
-        _check_length("sigma_axis", self.sigma_axis)
-        if self.sigma is not None and self.sigma_axis is not None:
-            raise ValueError(f"give sigma or sigma_axis, not both (got {self.sigma!r} and "
-                             f"{self.sigma_axis!r})")
-        try:
-            object.__setattr__(self, "decision", DecisionMode(self.decision))
-        except ValueError:
-            raise ValueError(f"decision must be one of {[m.value for m in DecisionMode]}, "
-                             f"got {self.decision!r}") from None
-        for name in ("rho_reject", "rho_apply"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
-        check_rho_thresholds(self.rho_reject, self.rho_apply)
-
-    @property
-    def known_sigma(self) -> Optional[float]:
-        """The given noise in the ``sigma`` convention (from ``sigma`` or ``sigma_axis``)."""
-        return self.sigma if self.sigma is not None else point_sigma(self.sigma_axis,
-                                                                      self.dimension)
+#: The defaults (decision ``cv``, 3D, iterative restoration, paper interpolation).
+DEFAULT_CONFIG = ModelConfig()
 
 
 class TargetCorrections(NamedTuple):
@@ -131,6 +63,23 @@ class TargetCorrections(NamedTuple):
     destination: NDArray[np.float64]
     expected_tre: NDArray[np.float64]
     tre_bound: NDArray[np.float64]
+
+
+class TargetAnswer(NamedTuple):
+    """What a robot needs for K targets (unit of the points): :meth:`RbcModel.answer`.
+
+    :ivar destination: the point to use per the decision, destination frame (K, d).
+    :ivar expected_tre: (K,) its expected distance from the true point.
+    :ivar tre_bound: (K,) the distance it stays within with 95 % probability.
+    :ivar inside_hull: (K,) target inside the fiducials' convex hull.
+    :ivar method: the decision's method (one of ``CANDIDATES``).
+    """
+
+    destination: NDArray[np.float64]
+    expected_tre: NDArray[np.float64]
+    tre_bound: NDArray[np.float64]
+    inside_hull: NDArray[np.bool_]
+    method: str
 
 
 @dataclass(frozen=True)
@@ -181,40 +130,57 @@ class RbcModel:
         kriging = self.interpolators.get("kriging")
         return kriging.hyper if kriging is not None else None
 
-    def correct(self, targets: ArrayLike) -> TargetCorrections:
-        """Correct targets measured in the working frame (eq. 5-6) and give the point to use.
+    def answer(self, targets: ArrayLike) -> TargetAnswer:
+        """The point to use for each target, per the decision, and its expected error: only the
+        chosen method is evaluated (the fast path for a robot asking right before insertion).
 
         :param targets: (K, d) working-frame points (d = ``config.dimension``), each measured
             once.
-        :return: :class:`TargetCorrections`.
+        :return: :class:`TargetAnswer`.
         :raises ValueError: on a wrong shape or NaN/inf.
         """
-        t = as_points(targets, "targets", self.config.dimension)
-        found: dict[str, Interpolated] = {self.config.interpolation: self.interpolator(t)}
+        return self._answer(as_points(targets, "targets", self.config.dimension), {})
 
+    def _answer(self, t: NDArray[np.float64], found: dict[str, Interpolated]) -> TargetAnswer:
+        """:meth:`answer`, reusing the interpolations already in ``found`` (and adding to it)."""
         def interpolated(method: str) -> Interpolated:
             if method not in found:
                 found[method] = self.interpolators[method](t)
             return found[method]
 
-        interp = found[self.config.interpolation]
-        uncorrected = self.uncorrected.apply(t)
-        corrected = self.corrected.apply(t - interp.correction)
         method = self.decision.method
         if method == UNCORRECTED:
-            destination = uncorrected
-        elif method == self.config.interpolation:
-            destination = corrected
+            destination = self.uncorrected.apply(t)
+            inside = (found[self.config.interpolation].inside_hull if found
+                      else self.interpolator.hull.simplices(t) >= 0)
         else:
-            destination = self.corrected.apply(t - interpolated(method).correction)
+            chosen = interpolated(method)
+            destination = self.corrected.apply(t - chosen.correction)
+            inside = chosen.inside_hull
         errors = self.decision.error_model
         scale = np.ones(len(t))
         if errors.scaled:
             kriging = self.interpolators["kriging"]
             scale = np.hypot(interpolated("kriging").expected_error, kriging.noise_axis_std)
         expected, bound = errors.at(scale)
-        return TargetCorrections(uncorrected, corrected, interp.correction, interp.inside_hull,
-                                 interp.expected_error, destination, expected, bound)
+        return TargetAnswer(destination, expected, bound, inside, method)
+
+    def correct(self, targets: ArrayLike) -> TargetCorrections:
+        """Correct targets measured in the working frame (eq. 5-6) and give the point to use.
+
+        :param targets: (K, d) working-frame points (d = ``config.dimension``), each measured
+            once.
+        :return: :class:`TargetCorrections`: the configured interpolation's correction and the
+            decision's :meth:`answer` together.
+        :raises ValueError: on a wrong shape or NaN/inf.
+        """
+        t = as_points(targets, "targets", self.config.dimension)
+        interp = self.interpolator(t)
+        ans = self._answer(t, {self.config.interpolation: interp})
+        return TargetCorrections(self.uncorrected.apply(t),
+                                 self.corrected.apply(t - interp.correction), interp.correction,
+                                 interp.inside_hull, interp.expected_error, ans.destination,
+                                 ans.expected_tre, ans.tre_bound)
 
 
 def _fit_subset(working: NDArray[np.float64], destination: NDArray[np.float64],
@@ -234,7 +200,7 @@ def _candidates(mode: DecisionMode, configured: str) -> tuple[str, ...]:
     return (UNCORRECTED, configured) if mode is DecisionMode.ON else (UNCORRECTED,)
 
 
-def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig = ModelConfig(),
+def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig = DEFAULT_CONFIG,
                 *, ids: Optional[Sequence[str]] = None,
                 working_repeats: Optional[Sequence[ArrayLike]] = None,
                 repeat_statistics: Optional[RepeatStats] = None,

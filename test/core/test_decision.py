@@ -184,3 +184,17 @@ def test_warm_start_and_leave_one_out_reuse_the_decision():
     np.testing.assert_array_equal(loo.tre_c, m.decision.cross_validation.errors["kriging"])
     off = build_model(x, y, ModelConfig(dimension=2, interpolation="kriging", decision="off"))
     np.testing.assert_allclose(leave_one_out(off).tre_c, loo.tre_c, rtol=1e-9)
+
+
+def test_answer_is_the_fast_path_of_correct():
+    x, y = cell(11, bias=2.0, noise=0.02)
+    for decision in ("cv", "off"):
+        m = build_model(x, y, ModelConfig(dimension=2, decision=decision))
+        t = x[:7] + 3.0
+        ans, tc = m.answer(t), m.correct(t)
+        assert ans.method == m.decision.method
+        np.testing.assert_array_equal(ans.destination, tc.destination)
+        np.testing.assert_array_equal(ans.tre_bound, tc.tre_bound)
+        np.testing.assert_array_equal(ans.inside_hull, tc.inside_hull)
+    with pytest.raises(ValueError, match=r"targets must have shape \(N, 2\)"):
+        m.answer(np.zeros((2, 3)))
