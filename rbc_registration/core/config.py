@@ -6,7 +6,8 @@ import math
 from dataclasses import dataclass
 from typing import Optional
 
-from .constants import INTERPOLATIONS, DecisionMode, check_rho_thresholds
+from .constants import (INTERPOLATIONS, MAX_RESTORATION_STEPS, DecisionMode,
+                        check_rho_thresholds)
 from .noise import point_sigma
 from .restoration import METHODS
 
@@ -58,6 +59,8 @@ class ModelConfig:
             raise ValueError(f"restoration must be one of {METHODS}, got {self.restoration!r}")
         if not isinstance(self.steps, int) or isinstance(self.steps, bool) or self.steps < 1:
             raise ValueError(f"steps must be a positive integer, got {self.steps!r}")
+        if self.steps > MAX_RESTORATION_STEPS:   # the node's restoration_steps range too
+            raise ValueError(f"steps must be in 1..{MAX_RESTORATION_STEPS}, got {self.steps!r}")
         if self.interpolation not in INTERPOLATIONS:
             raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, "
                              f"got {self.interpolation!r}")
