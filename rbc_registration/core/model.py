@@ -53,6 +53,8 @@ class TargetCorrections(NamedTuple):
     :ivar expected_tre: (K,) expected distance of ``destination`` from the true point (the
         chosen method's cross-validated median error, scaled per target; ``ErrorModel``).
     :ivar tre_bound: (K,) the distance ``destination`` stays within with 95 % probability.
+
+    The last three are None only in records built by hand with the first five fields.
     """
 
     uncorrected: NDArray[np.float64]
@@ -60,9 +62,10 @@ class TargetCorrections(NamedTuple):
     correction: NDArray[np.float64]
     inside_hull: NDArray[np.bool_]
     expected_error: NDArray[np.float64]
-    destination: NDArray[np.float64]
-    expected_tre: NDArray[np.float64]
-    tre_bound: NDArray[np.float64]
+    # Defaults keep records built by hand with the first five fields valid; correct() fills all.
+    destination: Optional[NDArray[np.float64]] = None
+    expected_tre: Optional[NDArray[np.float64]] = None
+    tre_bound: Optional[NDArray[np.float64]] = None
 
 
 class TargetAnswer(NamedTuple):
