@@ -28,8 +28,7 @@ def add_parser(sub: Any) -> None:
     ev.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
     ev.add_argument("--out", type=Path, metavar="DIR",
                     help="write report.json, report.md and PNG figures here")
-    add_model_options(ev, "default: 2 when every z in the bag is 0, else 3",
-                      "known noise sigma [m] (node parameter sigma); default: from repeats",
+    add_model_options(ev, "default: 2 when every z in the bag is 0, else 3", "m",
                       defaults=False)
     ev.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="a registration_node parameter, e.g. -p merge_radius:=0.002 (repeatable)")
@@ -56,7 +55,7 @@ def parse_params(items: list[str]) -> dict[str, Any]:
 
     :raises ValueError: on a malformed item, an unknown name or a value of the wrong type.
     """
-    from ..pipeline.settings import SPECS
+    from ..pipeline.settings import REMOVED, SPECS
 
     out: dict[str, Any] = {}
     for item in items:
@@ -64,6 +63,8 @@ def parse_params(items: list[str]) -> dict[str, Any]:
         name = name.strip()
         if not sep or not name:
             raise ValueError(f"-p expects NAME:=VALUE, got {item!r}")
+        if name in REMOVED:
+            raise ValueError(f"-p {name}: {REMOVED[name]}")
         if name not in SPECS:
             raise ValueError(f"unknown node parameter {name!r} (known: {', '.join(SPECS)})")
         kind = type(SPECS[name].default)
@@ -93,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
     refuse_outputs_onto_inputs([("--json", args.json)], inputs)
     refuse_outputs_onto_inputs([("--out", args.out)], inputs, REPORT_FILES)
     params = parse_params(args.param)
-    for key, value in (("sigma", args.sigma), ("restoration", args.restoration),
+    for key, value in (("sigma", args.sigma), ("sigma_axis", args.sigma_axis),
+                       ("decision", args.decision), ("restoration", args.restoration),
                        ("restoration_steps", args.steps), ("interpolation", args.interpolation)):
         if value is not None:
             params[key] = value

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Callable, Iterable, NoReturn, Optional, Sequence
 
-from ..core.constants import DIMENSIONS, INTERPOLATIONS, RESTORATIONS
+from ..core.constants import DECISION_MODES, DIMENSIONS, INTERPOLATIONS, RESTORATIONS
 from ..io.escape import terminal
 
 
@@ -95,21 +95,37 @@ def name_list(what: str) -> Callable[[str], tuple[str, ...]]:
     return parse
 
 
-def add_model_options(p: argparse.ArgumentParser, dim_help: str, sigma_help: str,
+def add_model_options(p: argparse.ArgumentParser, dim_help: str, unit: str,
                       defaults: bool) -> None:
-    """``--dim``, ``--sigma``, ``--restoration``, ``--steps``, ``--interpolation``.
+    """``--dim``, ``--sigma`` / ``--sigma-axis`` (one of them), ``--decision``,
+    ``--restoration``, ``--steps``, ``--interpolation``.
 
+    :param unit: the length unit of sigma, for the help text (``the file's unit``, ``m``).
     :param defaults: give the core's defaults (``register``); else ``None``, so that the node
         parameters decide (``evaluate``).
     """
     p.add_argument("--dim", type=int, choices=DIMENSIONS, help=dim_help)
-    p.add_argument("--sigma", type=float, help=sigma_help)
+    noise = p.add_mutually_exclusive_group()
+    noise.add_argument("--sigma", type=float, metavar="S",
+                       help=f"known noise [{unit}] of one measurement: RMS distance from the "
+                            f"true point, all axes together (the paper's rho = sigma_L0 / "
+                            f"sigma uses it); default: from repeated measurements")
+    noise.add_argument("--sigma-axis", type=float, metavar="S",
+                       help=f"known noise [{unit}] per axis (sigma = S * sqrt(dim)); not with "
+                            f"--sigma")
+    p.add_argument("--decision", choices=DECISION_MODES,
+                   default=DECISION_MODES[0] if defaults else None,
+                   help="whether and how targets get corrections: cv (default; "
+                        "cross-validated on the fiducials, needs no sigma), rho (the paper's "
+                        "rule, needs sigma), on, off")
     p.add_argument("--restoration", choices=RESTORATIONS,
                    default=RESTORATIONS[0] if defaults else None)
     steps: Optional[int] = 2 if defaults else None
     p.add_argument("--steps", type=int, default=steps, help="iterative steps (default 2)")
     p.add_argument("--interpolation", choices=INTERPOLATIONS,
-                   default=INTERPOLATIONS[0] if defaults else None)
+                   default=INTERPOLATIONS[0] if defaults else None,
+                   help="interpolation of the corrections (paper eq. 5): what 'corrected' "
+                        "reports, and what decisions rho and on apply; cv chooses among both")
 
 
 def _same_file(a: Path, b: Path) -> bool:

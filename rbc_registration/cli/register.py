@@ -19,8 +19,7 @@ def add_parser(sub: Any) -> None:
     reg = sub.add_parser("register", help="register from a FIDUCIALS.csv (and correct targets)")
     reg.add_argument("fiducials", type=Path, help="CSV: id,wx,wy,wz,dx,dy,dz (2D: no wz,dz)")
     reg.add_argument("--targets", type=Path, help="CSV: id,wx,wy,wz[,dx,dy,dz]")
-    add_model_options(reg, "default: 3 if the file has z", "noise sigma of one measurement (RMS "
-                      "over all axes); default: from repeated rows", defaults=True)
+    add_model_options(reg, "default: 3 if the file has z", "the file's unit", defaults=True)
     reg.add_argument("--loo", action="store_true",
                      help="leave-one-out accuracy estimate over the fiducials")
     ids = name_list("fiducial ids")
@@ -56,6 +55,7 @@ def model_config(args: argparse.Namespace, dimension: int,
 
     return ModelConfig(dimension=dimension, restoration=args.restoration, steps=args.steps,
                        interpolation=args.interpolation, sigma=args.sigma,
+                       sigma_axis=args.sigma_axis, decision=args.decision,
                        uncorrected_subset=indices(args.uncorrected_fit, "--uncorrected-fit"),
                        corrected_subset=indices(args.corrected_fit, "--corrected-fit"))
 

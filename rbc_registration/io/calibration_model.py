@@ -7,12 +7,14 @@ Units: a calibration is in metres; a report in millimetres (its ``unit``) is con
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from typing import Any, Callable, Mapping, Optional
 
 from ..core.constants import M_PER_MM
-from ..pipeline.settings import Settings, corrections_applied
+from ..core.decision import Decision as ModelDecision
+from ..pipeline.settings import Settings
 from ..pipeline.snapshot import SNAPSHOT_FORMAT
 from ..pipeline.state import ModelState
 from .calibration import REGISTRATIONS, Calibration, Decision, calibration_from_registration
@@ -28,14 +30,31 @@ def calibration_path(state_dir: str) -> str:
     return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), CALIBRATION_NAME)
 
 
-def decision_of(mode: str, interpolation: str, recommendation: str,
-                rho: Optional[float]) -> Decision:
-    """The decision of correction mode ``mode`` (``auto``, ``on``, ``off``) for a model with
-    ``recommendation`` and ``rho``: the interpolation when corrections apply, else uncorrected."""
-    apply = corrections_applied(mode, recommendation)
-    rho_text = "unknown" if rho is None else f"{rho:.3g}"
-    return Decision(mode=mode, method=interpolation if apply else "uncorrected", apply=apply,
-                    reason=f"recommendation {recommendation} (rho {rho_text})")
+def decision_record(decision: ModelDecision) -> Decision:
+    """The calibration file's decision (mode, method, apply, reason) of a model's decision."""
+    return Decision(mode=decision.mode.value, method=decision.method, apply=decision.apply,
+                    reason=decision.reason)
+
+
+def expected_tre(decision: ModelDecision) -> Optional[float]:
+    """The expected TRE of the decision: its chosen method's cross-validated median error (unit
+    of the points); None when it could not be cross-validated."""
+    score = decision.candidate(decision.method)
+    ok = score is not None and math.isfinite(score.cv_median)
+    return float(score.cv_median) if ok else None
+
+
+def _document_decision(data: Mapping[str, Any], where: str,
+                       scale: float) -> tuple[Decision, Optional[float]]:
+    """The decision and expected TRE [m] of a snapshot or report (its ``decision`` object)."""
+    d = _get(data, "decision", where)
+    try:
+        record = Decision(mode=d["mode"], method=d["method"], apply=d["apply"],
+                          reason=d["reason"])
+        median = d["cv"].get(d["method"], {}).get("median")
+    except (KeyError, TypeError, AttributeError):
+        raise ValueError(f"{where}: decision: needs mode, method, apply, reason and cv") from None
+    return record, None if median is None else scale * median
 
 
 def calibration_from_state(state: ModelState, settings: Settings, registration: str,
@@ -52,15 +71,13 @@ def calibration_from_state(state: ModelState, settings: Settings, registration: 
     if registration not in REGISTRATIONS:
         raise ValueError(f"registration must be one of {', '.join(REGISTRATIONS)}, "
                          f"got {registration!r}")
-    built = state.settings or settings
     reg = model.corrected if registration == "corrected" else model.uncorrected
     stamp_s = state.stamp_ns * 1e-9
     return calibration_from_registration(
         reg.rotation, reg.translation, parent_frame=settings.destination_frame,
         child_frame=settings.working_frame, registration=registration, fre_rms=reg.fre_rms,
-        decision=decision_of(settings.apply_corrections, built.interpolation,
-                             model.recommendation, model.rho),
-        sigma=model.sigma, sigma_l=model.sigma_l, expected_tre=None,
+        decision=decision_record(model.decision), sigma=model.sigma, sigma_l=model.sigma_l,
+        expected_tre=expected_tre(model.decision),
         n_fiducials=len(model.ids), clock=clock or (lambda: stamp_s))
 
 
@@ -94,12 +111,9 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
     if snapshot:
         if not data.get("model_valid"):
             raise ValueError(f"{where}: the snapshot holds no model ({data.get('error', '')})")
-        settings = _get(data, "settings", where)
         scale = 1.0
         parent = parent_frame or _get(data, "destination_frame", where)
         child = child_frame or _get(data, "working_frame", where)
-        mode, interpolation = settings.get("apply_corrections", "auto"), settings.get(
-            "interpolation", "paper")
         created_s = _get(data, "stamp_ns", where) * 1e-9
         n_fiducials = len(_get(data, "fiducial_ids", where))
         sigma_l = _get(data, "sigma_l", where)
@@ -110,22 +124,20 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
                              f"converts {', '.join(METRES_PER_UNIT)} (give --unit)")
         scale = METRES_PER_UNIT[label]
         parent, child = parent_frame or "world", child_frame or "tracker"
-        mode, interpolation = "auto", _get(data, "interpolation", where)
         created_s = time.time() if mtime is None else mtime
         n_fiducials = _get(data, "n_fiducials", where)
         sigma_l = _get(data, "sigma_L", where)
     reg = _get(data, registration, where)
     sigma = data.get("sigma")
-    rho = data.get("rho")
+    decision, tre = _document_decision(data, where, scale)
     try:
         return calibration_from_registration(
             _get(reg, "rotation", f"{where}: {registration}"),
             [scale * v for v in _get(reg, "translation", f"{where}: {registration}")],
             parent_frame=parent, child_frame=child, registration=registration,
             fre_rms=scale * _get(reg, "fre_rms", f"{where}: {registration}"),
-            decision=decision_of(mode, interpolation, _get(data, "recommendation", where), rho),
-            sigma=None if sigma is None else scale * sigma, sigma_l=[scale * v for v in sigma_l],
-            expected_tre=None, n_fiducials=n_fiducials, clock=lambda: created_s)
+            decision=decision, sigma=None if sigma is None else scale * sigma,
+            sigma_l=[scale * v for v in sigma_l], expected_tre=tre, n_fiducials=n_fiducials, clock=lambda: created_s)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
 

@@ -97,6 +97,11 @@ def write_report_dir(ev: Evaluation, out: Path, title: str = "") -> list[Path]:
                                             "TRE per target", "mm"))
         paths.append(figures.delta_tre(out / "delta_tre.png", ev.targets.ids, err.delta * MM,
                                        "dTRE = TRE_c - TRE_u", "mm"))
+    cv = model.decision.cross_validation.errors
+    if cv:
+        paths.append(figures.cv_errors(out / "cv_errors.png", {m: e * MM for m, e in cv.items()},
+                                       model.decision.method,
+                                       "Cross-validated error per candidate", "mm"))
     write_json(rep, out / "report.json")
     paths.append(out / "report.json")
     (out / "report.md").write_text(markdown(ev, [p.name for p in paths if p.suffix == ".png"],
@@ -107,6 +112,33 @@ def write_report_dir(ev: Evaluation, out: Path, title: str = "") -> list[Path]:
 
 def _mm(v: Optional[float], digits: int = 4) -> str:
     return "n/a" if v is None or not math.isfinite(v) else f"{v * MM:.{digits}g}"
+
+
+def _percent(v: Optional[float]) -> str:
+    return "n/a" if v is None else f"{100 * v:.0f}%"
+
+
+def decision_markdown(decision: dict[str, Any]) -> list[str]:
+    """The decision of a report (metres) as a Markdown section: mode, method, reason and each
+    candidate's cross-validated error in mm."""
+    folds = decision["folds"]
+    lines = ["## Decision", "",
+             f"Mode **{decision['mode']}**: targets get **{decision['method']}** (corrections "
+             f"{'applied' if decision['apply'] else 'not applied'}; "
+             f"{'confident' if decision['confident'] else 'uncertain'}). {decision['reason']}",
+             "", f"Cross-validated error per candidate ({folds['kind']}, {folds['n_folds']} "
+             f"folds; mm):", "",
+             "| candidate | median | rms | 95 % bound | Wilcoxon W+ | p-value |",
+             "|---|---|---|---|---|---|"]
+    for name, c in decision["cv"].items():
+        if not c["available"]:
+            lines.append(f"| {name} | n/a | n/a | n/a | | {c['note']} |")
+            continue
+        stat = "" if c["statistic"] is None else f"{c['statistic']:.0f}"
+        p = "" if c["p_value"] is None else f"{c['p_value']:.2g}"
+        lines.append(f"| {name} | {_mm(c['median'])} | {_mm(c['rms'])} | {_mm(c['bound'])} | "
+                     f"{stat} | {p} |")
+    return lines + [""]
 
 
 def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
@@ -122,21 +154,25 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
                                                       bag["rejected"].items() if n) or "none")
              + ". Lengths in mm (report.json: metres).", "",
              "## Table 1 values", "",
-             "| sigma | sigma_L0 | rho | sigma_L1 | sigma_L2 | decision |",
-             "|---|---|---|---|---|---|",
-             f"| {_mm(m.sigma, 3)} ({m.sigma_source}) | {_mm(sl[0], 3)} | "
-             f"{'n/a' if m.rho is None else f'{m.rho:.3g}'} | {_mm(sl[1], 2)} | {_mm(sl[2], 2)} "
-             f"| **{m.recommendation}** |", "",
+             "| sigma | sigma_axis | sigma_L0 | rho | sigma_L1 | sigma_L2 | rho rule |",
+             "|---|---|---|---|---|---|---|",
+             f"| {_mm(m.sigma, 3)} ({m.sigma_source}) | {_mm(m.sigma_axis, 3)} | "
+             f"{_mm(sl[0], 3)} | {'n/a' if m.rho is None else f'{m.rho:.3g}'} | "
+             f"{_mm(sl[1], 2)} | {_mm(sl[2], 2)} | {m.recommendation} |", "",
              f"FRE rms: uncorrected {_mm(m.uncorrected.fre_rms)}, corrected "
-             f"{_mm(m.corrected.fre_rms)}.", ""]
+             f"{_mm(m.corrected.fre_rms)}.", "", *decision_markdown(rep["decision"])]
     if rep["targets"] and "tre_u" in rep["targets"][0]:
         s = rep["summary"]
         lines += ["## Targets", "",
                   f"Median TRE_u {_mm(s['tre_u_median'])}, TRE_c {_mm(s['tre_c_median'])}; "
                   f"corrections improved {100 * s['fraction_improved']:.0f}% of "
                   f"{len(rep['targets'])} targets.", "",
-                  "| target | TRE_u | TRE_c | dTRE | inside hull |", "|---|---|---|---|---|"]
-        lines += [f"| {md_text(t['id'])} | {_mm(t['tre_u'])} | {_mm(t['tre_c'])} | "
+                  f"The points to use (per the decision): median TRE {_mm(s['tre_median'])}; "
+                  f"{_percent(s['fraction_within_bound'])} of targets within their 95 % bound.",
+                  "", "| target | TRE | expected TRE | 95 % bound | TRE_u | TRE_c | dTRE "
+                  "| inside hull |", "|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {md_text(t['id'])} | {_mm(t['tre'])} | {_mm(t['expected_tre'])} | "
+                  f"{_mm(t['tre_bound'])} | {_mm(t['tre_u'])} | {_mm(t['tre_c'])} | "
                   f"{_mm(t['tre_c'] - t['tre_u'], 3)} | {'yes' if t['inside_hull'] else 'no'} |"
                   for t in rep["targets"]]
         lines.append("")

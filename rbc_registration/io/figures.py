@@ -1,4 +1,5 @@
-"""Figures of the paper's kind (Figs 2-5) and a fiducial map, as PNG.
+"""Figures of the paper's kind (Figs 2-5), a fiducial map and the decision's cross-validated
+errors, as PNG.
 
 Drawn on :class:`matplotlib.figure.Figure` objects directly (no pyplot, no global backend
 selected on import): a figure is rendered to PNG by ``savefig`` alone, so importing this module
@@ -8,7 +9,7 @@ changes nothing for an application that uses matplotlib itself.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Mapping, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -105,6 +106,31 @@ def fiducial_map(path: Path, working: ArrayLike, corrections: ArrayLike, unit: s
     ax.set_ylabel(f"y [{unit}]")
     ax.set_title(title)
     ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def cv_errors(path: Path, errors: Mapping[str, ArrayLike], chosen: str, title: str,
+              unit: str) -> Path:
+    """The cross-validated error of each candidate of the decision: the held-out errors per
+    fiducial as a box per candidate (median line, quartile box, whiskers at 1.5 IQR) with every
+    fiducial as a dot; the chosen candidate drawn in colour."""
+    names = list(errors)
+    fig = Figure(figsize=(1.8 * len(names) + 2.5, 3.8))
+    ax = fig.subplots()
+    values = [np.asarray(errors[n], dtype=float) for n in names]
+    box = ax.boxplot(values, patch_artist=True, showfliers=False)
+    ax.set_xticks(np.arange(1, len(names) + 1), names)
+    rng = np.random.default_rng(0)   # fixed jitter: the same figure for the same data
+    for k, (name, v) in enumerate(zip(names, values), start=1):
+        colour = "tab:green" if name == chosen else "0.6"
+        box["boxes"][k - 1].set_facecolor(colour)
+        box["boxes"][k - 1].set_alpha(0.5)
+        ax.plot(k + rng.uniform(-0.15, 0.15, len(v)), v, ".", ms=2.5, color="k", alpha=0.5)
+        ax.annotate(f"median {np.median(v):.3g}", (k, float(np.max(v))), ha="center",
+                    va="bottom", fontsize=7)
+    ax.set_ylabel(f"held-out error [{unit}]")
+    ax.set_title(f"{title} (chosen: {chosen})")
     fig.tight_layout()
     return _save(fig, path)
 

@@ -23,6 +23,15 @@ def _summary(err: Optional[TargetErrors]) -> dict[str, Any]:
     return {k: _num(v) for k, v in err.summary().items()}
 
 
+def _destination_summary(tre: Optional[np.ndarray], bound: np.ndarray) -> dict[str, Any]:
+    """Median TRE of the points to use, and the share of targets within their 95 % bound."""
+    if tre is None or len(tre) == 0:
+        return {"tre_median": None, "fraction_within_bound": None}
+    finite = np.isfinite(bound)
+    within = float(np.mean(tre[finite] <= bound[finite])) if finite.any() else None
+    return {"tre_median": _num(float(np.median(tre))), "fraction_within_bound": _num(within)}
+
+
 def model_report(model: RbcModel, target_ids: Sequence[str] = (),
                  targets_working: Optional[ArrayLike] = None,
                  targets_destination: Optional[ArrayLike] = None,
@@ -38,30 +47,36 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
         "steps": cfg.steps if cfg.restoration == "iterative" else 1,
         "interpolation": cfg.interpolation,
         "sigma": _num(model.sigma),
+        "sigma_axis": _num(model.sigma_axis),
         "sigma_source": model.sigma_source,
         "sigma_L": [_num(v) for v in model.sigma_l],
         "rho": _num(model.rho),
         "recommendation": model.recommendation,
+        "decision": model.decision.to_dict(),
         "uncorrected": registration_json(model.uncorrected),
         "corrected": registration_json(model.corrected),
         "fiducials": [{"id": fid, "correction": _vec(eps), "n": int(n)}
                       for fid, eps, n in zip(model.ids, model.corrections, model.counts)],
         "targets": [],
-        "summary": _summary(None),
+        "summary": {**_summary(None), **_destination_summary(None, np.empty(0))},
     }
     if targets_working is not None and len(target_ids):
         tc = model.correct(targets_working)
         err = (target_errors(model, targets_working, targets_destination)
                if targets_destination is not None else None)
+        tre = (np.linalg.norm(tc.destination - np.asarray(targets_destination, float)[
+            :, :cfg.dimension], axis=1) if err is not None else None)
         for k, tid in enumerate(target_ids):
-            entry = {"id": tid, "uncorrected": _vec(tc.uncorrected[k]),
+            entry = {"id": tid, "destination": _vec(tc.destination[k]),
+                     "expected_tre": _num(tc.expected_tre[k]), "tre_bound": _num(tc.tre_bound[k]),
+                     "uncorrected": _vec(tc.uncorrected[k]),
                      "corrected": _vec(tc.corrected[k]), "correction": _vec(tc.correction[k]),
                      "inside_hull": bool(tc.inside_hull[k]),
                      "expected_error": _num(tc.expected_error[k])}
             if err is not None:
-                entry.update(tre_u=_num(err.tre_u[k]), tre_c=_num(err.tre_c[k]))
+                entry.update(tre=_num(tre[k]), tre_u=_num(err.tre_u[k]), tre_c=_num(err.tre_c[k]))
             report["targets"].append(entry)
-        report["summary"] = _summary(err)
+        report["summary"] = {**_summary(err), **_destination_summary(tre, tc.tre_bound)}
     if loo is not None:
         report["loo"] = {**{k: v for k, v in _summary(loo).items() if k != "fraction_improved"},
                          "fraction_improved": _summary(loo)["fraction_improved"],
@@ -83,6 +98,28 @@ def _fmt(v: Any, unit: str = "") -> str:
     return str(v)
 
 
+def decision_lines(decision: dict[str, Any], unit: str) -> list[str]:
+    """The decision of a report (its ``decision`` object) as text lines: mode, method, reason,
+    and each candidate's cross-validated error."""
+    folds = decision["folds"]
+    kind = (f"{folds['kind']}, {folds['n_folds']} folds" if folds["n_folds"] else folds["kind"])
+    lines = [f"  decision     {decision['mode']} -> {decision['method']} (corrections "
+             f"{'applied' if decision['apply'] else 'not applied'}"
+             f"{'' if decision['confident'] else '; uncertain'})",
+             f"  reason       {decision['reason']}",
+             f"  cross-validated error per candidate ({kind}; {unit}):",
+             f"    {'candidate':<12} {'median':>10} {'rms':>10} {'95% bound':>10} "
+             f"{'p-value':>9}"]
+    for name, c in decision["cv"].items():
+        if not c["available"]:
+            lines.append(f"    {name:<12} n/a ({c['note']})")
+            continue
+        p = "" if c["p_value"] is None else f"{c['p_value']:.2g}"
+        lines.append(f"    {name:<12} {c['median']:>10.4g} {c['rms']:>10.4g} "
+                     f"{_fmt(c['bound']):>10} {p:>9}")
+    return lines
+
+
 def format_report(report: dict[str, Any]) -> str:
     """A readable text version of a report dict (ids and unit escaped for the terminal)."""
     u = terminal(report["unit"])
@@ -92,31 +129,40 @@ def format_report(report: dict[str, Any]) -> str:
         f"measurements), {report['dim']}D, lengths in {u}",
         f"  restoration {report['restoration']} ({report['steps']} step(s)), "
         f"interpolation {report['interpolation']}",
-        f"  sigma        {_fmt(report['sigma'], u)} ({report['sigma_source']})",
+        f"  sigma        {_fmt(report['sigma'], u)} per point, {_fmt(report['sigma_axis'], u)} "
+        f"per axis ({report['sigma_source']})",
         f"  sigma_L      {sig_l} {u}  (before, after each step; eq. 7)",
-        f"  rho          {_fmt(report['rho'])} -> {report['recommendation']}",
+        f"  rho          {_fmt(report['rho'])} -> {report['recommendation']} (the paper's rule)",
         f"  FRE rms      uncorrected {_fmt(report['uncorrected']['fre_rms'], u)}, "
         f"corrected {_fmt(report['corrected']['fre_rms'], u)}",
+        *decision_lines(report["decision"], u),
     ]
     if report["targets"]:
         truth = "tre_u" in report["targets"][0]
         lines.append("")
-        head = f"  {'target':<10} {'correction |eps|':>16} {'hull':>5}"
+        head = (f"  {'target':<10} {'correction |eps|':>16} {'hull':>5} {'exp. TRE':>10} "
+                f"{'95% bound':>10}")
         if truth:
-            head += f" {'TRE_u':>10} {'TRE_c':>10} {'dTRE':>10}"
+            head += f" {'TRE':>10} {'TRE_u':>10} {'TRE_c':>10} {'dTRE':>10}"
         lines.append(head)
         for t in report["targets"]:
             eps = float(np.linalg.norm(np.array(t["correction"], float)))
             row = (f"  {terminal(t['id']):<10} {eps:>16.4g} "
-                   f"{'in' if t['inside_hull'] else 'OUT':>5}")
+                   f"{'in' if t['inside_hull'] else 'OUT':>5} {_fmt(t['expected_tre']):>10} "
+                   f"{_fmt(t['tre_bound']):>10}")
             if truth:
-                row += f" {t['tre_u']:>10.4g} {t['tre_c']:>10.4g} {t['tre_c'] - t['tre_u']:>+10.3g}"
+                row += (f" {t['tre']:>10.4g} {t['tre_u']:>10.4g} {t['tre_c']:>10.4g} "
+                        f"{t['tre_c'] - t['tre_u']:>+10.3g}")
             lines.append(row)
         s = report["summary"]
         if s["tre_u_median"] is not None:
-            lines.append(f"  median TRE_u {_fmt(s['tre_u_median'], u)}, TRE_c "
-                         f"{_fmt(s['tre_c_median'], u)}; improved "
+            lines.append(f"  median TRE {_fmt(s['tre_median'], u)} (the points to use), "
+                         f"TRE_u {_fmt(s['tre_u_median'], u)}, TRE_c "
+                         f"{_fmt(s['tre_c_median'], u)}; corrections improved "
                          f"{100 * s['fraction_improved']:.0f}% of targets")
+            if s["fraction_within_bound"] is not None:
+                lines.append(f"  {100 * s['fraction_within_bound']:.0f}% of targets within "
+                             f"their 95% bound")
     if "loo" in report:
         lo = report["loo"]
         lines.append(f"  leave-one-out: median TRE_u {_fmt(lo['tre_u_median'], u)}, TRE_c "

@@ -15,6 +15,7 @@ from ..core.accumulator import (FiducialAccumulator, FiducialSet, Measurement, R
                                 RejectedMeasurement)
 from ..core.pairing import StampPairer
 from .journal import Journal
+from .residuals import FiducialSummary
 from .settings import Settings
 
 #: Every rejection of a reason is logged up to this count, then at most once per second.
@@ -208,6 +209,14 @@ class Ingest:
         with self._lock:
             return {fid: mean_d for fid, (_n, enabled, _mw, _m2w, mean_d, _m2d)
                     in self._acc.state_digest() if not enabled}
+
+    def fiducial_summaries(self) -> list[FiducialSummary]:
+        """Every fiducial (enabled and disabled) with its count and mean points, in the order
+        first measured (for ``~/get_fiducials``)."""
+        with self._lock:
+            return [FiducialSummary(fid, n, enabled, tuple(mean_w), tuple(mean_d))
+                    for fid, (n, enabled, mean_w, _m2w, mean_d, _m2d)
+                    in self._acc.state_digest()]
 
     def counters(self) -> Counters:
         """Measurement and rejection counters now."""

@@ -12,8 +12,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping, NamedTuple, Optional
 
-from ..core.constants import (INTERPOLATIONS, MAX_RESTORATION_STEPS, RESTORATIONS,
-                              rho_thresholds_error)
+from ..core.constants import (DECISION_MODES, INTERPOLATIONS, MAX_RESTORATION_STEPS,
+                               RESTORATIONS, DecisionMode, rho_thresholds_error)
 
 
 class Spec(NamedTuple):
@@ -30,7 +30,6 @@ class Spec(NamedTuple):
     choices: tuple[str, ...] = ()
 
 
-CORRECTION_MODES = ("auto", "on", "off")
 TF_MODES = ("corrected", "uncorrected", "none")
 RELIABILITIES = ("reliable", "best_effort")
 #: ``state_dir`` value meaning "derived from the node's namespace and name"
@@ -38,6 +37,10 @@ RELIABILITIES = ("reliable", "best_effort")
 STATE_DIR_AUTO = "auto"
 POINT_MODES = ("pair", "sample")      # point_mode: pair points by stamp, or on ~/take_sample only
 SAMPLE_SOURCES = ("topic", "tf")      # sample_destination_source
+
+#: Parameters that were removed, with what replaces them (the reason given when one is set).
+REMOVED = {"apply_corrections": "it was replaced by 'decision' (auto -> rho for the paper's "
+                                "rule, or cv, the default; on -> on; off -> off)"}
 
 SPECS: dict[str, Spec] = {
     "working_frame": Spec("tracker", "Frame the working points (fiducials, targets) are measured "
@@ -54,16 +57,25 @@ SPECS: dict[str, Spec] = {
                           "(paper eq. 5): 'paper' or 'kriging'.", choices=INTERPOLATIONS),
     "sigma": Spec(0.0, "Known noise sigma [m] of one working-frame measurement, in the sense of "
                   "the sigma estimated from repeats (RMS distance of a measurement from the "
-                  "fiducial's mean, all axes together; per axis it is sigma / sqrt(dimension)). "
-                  "0 = unknown: estimated from fiducials measured >= 2 times.", low=0.0,
-                  high=1.0),
-    "rho_reject": Spec(1.0, "rho = sigma_L0 / sigma below this: corrections are not applied "
-                       "(paper: rho < 1 makes registration worse). Must be <= rho_apply.",
-                       low=0.0, high=1e6),
-    "rho_apply": Spec(2.5, "rho at or above this: corrections are applied in 'auto' mode "
-                      "(paper: rho >= 2.5 is beneficial).", low=0.0, high=1e6),
-    "apply_corrections": Spec("auto", "'auto': apply corrections only when the recommendation "
-                              "is 'apply'; 'on' / 'off' force it.", choices=CORRECTION_MODES),
+                  "fiducial's mean, all axes together; per axis it is sigma / sqrt(dimension)); "
+                  "the paper's rho = sigma_L0 / sigma uses it (pure noise: rho = sqrt(2 / "
+                  "dimension)). 0 = unknown: estimated from fiducials measured >= 2 times. "
+                  "Give sigma or sigma_axis, not both.", low=0.0, high=1.0),
+    "sigma_axis": Spec(0.0, "Known noise [m] per axis of one working-frame measurement "
+                       "(sigma = sigma_axis * sqrt(dimension); a 0.11 mm 'per axis' spec is "
+                       "sigma_axis 0.00011). 0 = unknown. Give sigma or sigma_axis, not both.",
+                       low=0.0, high=1.0),
+    "decision": Spec(DecisionMode.CV.value, "Whether and how targets get corrections: 'cv' "
+                     "(cross-validated on the fiducials, needs no sigma: a correction is applied "
+                     "only when it predicts held-out fiducials better than the uncorrected "
+                     "registration with 95 % confidence), 'rho' (the paper's rule on rho, needs "
+                     "sigma), 'on' (always the configured interpolation), 'off' (never). rho is "
+                     "reported in every mode.", choices=DECISION_MODES),
+    "rho_reject": Spec(1.0, "rho = sigma_L0 / sigma below this: the paper's rule says do not "
+                       "correct (paper: rho < 1 makes registration worse). Must be <= "
+                       "rho_apply.", low=0.0, high=1e6),
+    "rho_apply": Spec(2.5, "rho at or above this: the paper's rule says correct (decision "
+                      "'rho'; paper: rho >= 2.5 is beneficial).", low=0.0, high=1e6),
     "min_fiducials": Spec(4, "Enabled fiducials needed before a model is built.",
                           low=3, high=1_000_000),
     "pair_slop": Spec(0.02, "Largest stamp difference [s] between a ~/working_point and a "
@@ -102,6 +114,9 @@ SPECS: dict[str, Spec] = {
     "journal_fsync": Spec(False, "fsync the journal after every record (survives power loss; "
                           "slower). Default: flush to the OS per record (survives SIGKILL). "
                           "Read-only.", read_only=True),
+    "stale_after": Spec(30.0, "/diagnostics warns when accepted measurements have waited "
+                        "longer than this [s] without entering the model (a stale model).",
+                        low=0.0, high=1e6, low_exclusive=True),
     "status_period": Spec(1.0, "Period [s] of ~/status and /diagnostics besides each "
                           "recompute. Read-only.", read_only=True, low=0.01, high=3600.0),
     "tf_broadcast": Spec("corrected", "Which registration the node's own /tf_static entry "
@@ -144,9 +159,10 @@ class Settings:
     restoration_steps: int
     interpolation: str
     sigma: float
+    sigma_axis: float
+    decision: str
     rho_reject: float
     rho_apply: float
-    apply_corrections: str
     min_fiducials: int
     pair_slop: float
     merge_radius: float
@@ -159,6 +175,7 @@ class Settings:
     state_dir: str
     calibration_file: str
     journal_fsync: bool
+    stale_after: float
     status_period: float
     tf_broadcast: str
     point_mode: str
@@ -196,6 +213,8 @@ class Settings:
 def validate_one(name: str, value: Any) -> Optional[str]:
     """Return why ``value`` is not valid for parameter ``name``, or ``None`` when it is."""
     spec = SPECS.get(name)
+    if name in REMOVED:
+        return f"parameter {name} no longer exists: {REMOVED[name]}"
     if spec is None:
         return f"unknown parameter {name!r}"
     kind = type(spec.default)
@@ -235,14 +254,7 @@ def validate(values: Mapping[str, Any]) -> Optional[str]:
         error = validate_one(name, value)
         if error:
             return error
+    if values.get("sigma", 0.0) > 0 and values.get("sigma_axis", 0.0) > 0:
+        return (f"give sigma or sigma_axis, not both (sigma {values['sigma']!r}, sigma_axis "
+                f"{values['sigma_axis']!r}; 0 = unknown)")
     return rho_thresholds_error(values.get("rho_reject", 0.0), values.get("rho_apply", math.inf))
-
-
-def corrections_applied(mode: str, recommendation: str) -> bool:
-    """Whether corrected targets are answered: ``mode`` 'on' / 'off' force it; 'auto' follows
-    the paper's rho rule, i.e. applies only when ``recommendation == "apply"``."""
-    if mode == "on":
-        return True
-    if mode == "off":
-        return False
-    return recommendation == "apply"

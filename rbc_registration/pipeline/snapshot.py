@@ -145,8 +145,8 @@ def snapshot_path(state_dir: str) -> str:
 def snapshot_json(state: ModelState, working_frame: str, destination_frame: str,
                   dimension: int) -> str:
     """The calibration snapshot (``calibration.json``) of ``state``: frames, both registrations
-    (destination = R @ working + t, metres), the fiducials and their corrections, sigma, rho and
-    the settings the model was built with."""
+    (destination = R @ working + t, metres), the fiducials and their corrections, sigma, rho, the
+    decision (``Decision.to_dict``) and the settings the model was built with."""
     model, fiducials, settings = state.model, state.fiducials, state.settings
     data: dict[str, Any] = {
         "format": SNAPSHOT_FORMAT, "working_frame": working_frame,
@@ -167,5 +167,5 @@ def snapshot_json(state: ModelState, working_frame: str, destination_frame: str,
                     uncorrected=registration_json(model.uncorrected),
                     sigma=model.sigma, sigma_source=model.sigma_source,
                     sigma_l=[float(v) for v in model.sigma_l], rho=model.rho,
-                    recommendation=model.recommendation)
+                    recommendation=model.recommendation, decision=model.decision.to_dict())
     return json.dumps(json_clean(data), indent=1)

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 from ..core.accumulator import FiducialSet
+from ..core.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
 from .settings import Settings
 
@@ -33,16 +34,30 @@ EMPTY_STATE = ModelState(None, None, None, "no measurements yet")
 
 
 def model_config(settings: Settings) -> ModelConfig:
-    """The core model configuration for the node's parameters (``sigma`` 0 means unknown)."""
+    """The core model configuration for the node's parameters (``sigma`` / ``sigma_axis`` 0
+    means unknown)."""
     return ModelConfig(dimension=settings.dimension, restoration=settings.restoration,
                        steps=settings.restoration_steps, interpolation=settings.interpolation,
                        sigma=settings.sigma if settings.sigma > 0 else None,
-                       rho_reject=settings.rho_reject, rho_apply=settings.rho_apply)
+                       sigma_axis=settings.sigma_axis if settings.sigma_axis > 0 else None,
+                       decision=settings.decision, rho_reject=settings.rho_reject,
+                       rho_apply=settings.rho_apply)
 
 
-def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int) -> ModelState:
+def warm_start(state: ModelState) -> Optional[KrigingHyperparameters]:
+    """The kriging hyper-parameters of ``state``'s model (the warm start of the next build),
+    None without a model or kriging."""
+    return state.model.kriging_hyperparameters if state.model is not None else None
+
+
+def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
+                previous: Optional[KrigingHyperparameters] = None) -> ModelState:
     """Build the model for ``fiducials``; a bad or degenerate set gives ``model=None`` and the
-    core's error message (never raises ValueError)."""
+    core's error message (never raises ValueError).
+
+    :param previous: kriging hyper-parameters to start the fit from (:func:`warm_start` of the
+        model served so far): a rebuild after a few new fiducials refines instead of searching.
+    """
     n = len(fiducials.ids)
     if n < settings.min_fiducials:
         return ModelState(None, fiducials, settings,
@@ -51,7 +66,8 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int) -> Mo
     try:
         model = build_model(fiducials.working, fiducials.destination, model_config(settings),
                             ids=list(fiducials.ids),
-                            repeat_statistics=fiducials.repeat_stats)
+                            repeat_statistics=fiducials.repeat_stats,
+                            kriging_warm_start=previous)
     except ValueError as exc:
         return ModelState(None, fiducials, settings, f"model not built: {exc}", stamp_ns)
     # The status and the snapshot report every sigma_L (computed on first access, O(J^2)): here,

@@ -14,8 +14,9 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, PointStamped, TransformStamped, Vector3
 from numpy.typing import NDArray
 
-from rbc_registration_interfaces.msg import TargetCorrection
+from rbc_registration_interfaces.msg import FiducialResidual, TargetCorrection
 
+from ..core.constants import UNCORRECTED
 from ..core.records import quote
 from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.ingest import PairArgs
@@ -91,31 +92,52 @@ def _to_xyz(points: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.f
     return np.column_stack([points, z])
 
 
-def target_corrections_to_msgs(tc: Any, z: NDArray[np.float64], applied: bool,
+def target_corrections_to_msgs(tc: Any, z: NDArray[np.float64], method: str,
                                destination_frame: str,
                                stamps: Sequence[Time]) -> list[TargetCorrection]:
     """``core.model.TargetCorrections`` -> one ``TargetCorrection`` message per target.
 
     :param z: the targets' z, used in 2D for the destination points (passed through).
-    :param applied: whether ``destination`` is the corrected point.
+    :param method: the decision's method (``tc.destination`` is its point; ``uncorrected``:
+        no correction applied).
     :param stamps: the targets' stamps, copied into the answers.
     """
     # Whole arrays to Python floats once (tolist is exact), then messages built by fast_msgs.
     corrected = _to_xyz(np.asarray(tc.corrected), z).tolist()
     uncorrected = _to_xyz(np.asarray(tc.uncorrected), z).tolist()
+    destination = _to_xyz(np.asarray(tc.destination), z).tolist()
     correction = _to_xyz(np.asarray(tc.correction), np.zeros_like(z)).tolist()
     inside = np.asarray(tc.inside_hull, dtype=bool).tolist()
     expected = np.asarray(tc.expected_error, dtype=np.float64).tolist()
-    applied = bool(applied)
+    tre = np.asarray(tc.expected_tre, dtype=np.float64).tolist()
+    bound = np.asarray(tc.tre_bound, dtype=np.float64).tolist()
+    applied = method != UNCORRECTED
     out = []
     for k in range(len(z)):
         c = fast_msgs.point_stamped(stamps[k], destination_frame, fast_msgs.point(*corrected[k]))
         u = fast_msgs.point_stamped(stamps[k], destination_frame,
                                     fast_msgs.point(*uncorrected[k]))
-        out.append(fast_msgs.target_correction(c if applied else u, c, u,
-                                               fast_msgs.vector3(*correction[k]), applied,
-                                               inside[k], expected[k]))
+        d = u if not applied else fast_msgs.point_stamped(stamps[k], destination_frame,
+                                                          fast_msgs.point(*destination[k]))
+        out.append(fast_msgs.target_correction(d, c, u, fast_msgs.vector3(*correction[k]),
+                                               applied, inside[k], expected[k], method,
+                                               tre[k], bound[k]))
     return out
+
+
+def _point3(xyz: Sequence[float]) -> Point:
+    """d coordinates (2 or 3) -> ``geometry_msgs/Point`` (z = 0 in 2D)."""
+    return fast_msgs.point(*(list(map(float, xyz)) + [0.0] * (3 - len(xyz))))
+
+
+def fiducial_residual_msg(r: Any) -> FiducialResidual:
+    """``pipeline.residuals.FiducialResidual`` -> ``FiducialResidual`` message (metres)."""
+    f = r.summary
+    return FiducialResidual(
+        fiducial_id=f.fiducial_id, enabled=f.enabled, n_measurements=f.n_measurements,
+        correction_norm=r.correction_norm, cv_error=r.cv_error,
+        cv_error_uncorrected=r.cv_error_uncorrected, residual_uncorrected=r.residual_uncorrected,
+        working_mean=_point3(f.working_mean), destination_mean=_point3(f.destination_mean))
 
 
 def fill_correct_target_response(response: Any, result: TargetCorrection) -> Any:

@@ -30,7 +30,8 @@ from rbc_registration_interfaces.msg import TargetCorrection
 FIELDS = {Point: ("x", "y", "z"), Vector3: ("x", "y", "z"), Header: ("stamp", "frame_id"),
           PointStamped: ("header", "point"),
           TargetCorrection: ("destination", "corrected", "uncorrected", "correction",
-                             "correction_applied", "inside_hull", "expected_error")}
+                             "correction_applied", "inside_hull", "expected_error", "method",
+                             "expected_tre", "tre_bound")}
 
 
 def _checks_on(cls: type) -> bool:
@@ -73,16 +74,19 @@ def point_stamped(stamp: Time, frame_id: str, p: Point) -> PointStamped:
 
 def target_correction(destination: PointStamped, corrected: PointStamped,
                       uncorrected: PointStamped, correction: Vector3, correction_applied: bool,
-                      inside_hull: bool, expected_error: float) -> TargetCorrection:
+                      inside_hull: bool, expected_error: float, method: str,
+                      expected_tre: float, tre_bound: float) -> TargetCorrection:
     """``rbc_registration_interfaces/TargetCorrection`` with every field given."""
     if not FAST:
         return TargetCorrection(destination=destination, corrected=corrected,
                                 uncorrected=uncorrected, correction=correction,
                                 correction_applied=correction_applied, inside_hull=inside_hull,
-                                expected_error=expected_error)
+                                expected_error=expected_error, method=method,
+                                expected_tre=expected_tre, tre_bound=tre_bound)
     m = TargetCorrection.__new__(TargetCorrection)
     m._check_fields = False
     m._destination, m._corrected, m._uncorrected = destination, corrected, uncorrected
     m._correction, m._correction_applied = correction, correction_applied
     m._inside_hull, m._expected_error = inside_hull, expected_error
+    m._method, m._expected_tre, m._tre_bound = method, expected_tre, tre_bound
     return m

@@ -28,24 +28,25 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus
-from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, SetFiducialEnabled,
-                                             TakeSample)
+from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetFiducials,
+                                             SetFiducialEnabled, TakeSample)
 
 from ..core.accumulator import FiducialAccumulator
 from ..core.pairing import DESTINATION, WORKING, StampPairer
 from ..pipeline.files import StateDirLock
+from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
 from ..pipeline.journal import Journal
 from ..pipeline.settings import SPECS
 from ..pipeline.snapshot import snapshot_json, snapshot_path, tidy_state_dir, write_atomic
-from ..pipeline.state import EMPTY_STATE, ModelState, build_state
+from ..pipeline.state import EMPTY_STATE, ModelState, build_state, warm_start
 from ..pipeline.worker import LatestWriter, RecomputeWorker
 from . import conversions as conv
 from . import params, samples, saved
 from .guards import guard_input, guard_service
 from .markers import markers_msg
 from .services import ServicesMixin
-from .status import diagnostics_msg, status_msg
+from .status import diagnostics_msg, health_of, status_msg
 from .tf_static import StaticTf
 
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -100,6 +101,7 @@ class RegistrationNode(ServicesMixin, Node):
         self._build = build
         self._write_snapshot = write_snapshot
         self._pub_lock = threading.Lock()
+        self._health = HealthMonitor(s.stale_after)  # /diagnostics levels (pipeline.health)
         self._state: ModelState = EMPTY_STATE
         self._generation = 0  # bumped by ~/reset: a rebuild of an older generation is dropped
         # The transforms /tf_static chooses from ({tf_broadcast: TransformStamped}); {} = none.
@@ -144,6 +146,7 @@ class RegistrationNode(ServicesMixin, Node):
                 (CorrectTarget, "~/correct_target", self._on_correct_target),
                 (CorrectTargets, "~/correct_targets", self._on_correct_targets),
                 (SetFiducialEnabled, "~/set_fiducial_enabled", self._on_set_fiducial_enabled),
+                (GetFiducials, "~/get_fiducials", self._on_get_fiducials),
                 (Trigger, "~/reset", self._on_reset),
                 (Trigger, "~/recompute", self._on_recompute),
                 (Trigger, "~/save", self._on_save),
@@ -201,7 +204,9 @@ class RegistrationNode(ServicesMixin, Node):
         generation = self._generation
         fiducials = self._ingest.fiducial_set()
         disabled_points = self._ingest.disabled_points()
-        state = self._build(fiducials, self._settings, self.get_clock().now().nanoseconds)
+        # The served model's kriging hyper-parameters start the next fit (warm start).
+        state = self._build(fiducials, self._settings, self.get_clock().now().nanoseconds,
+                            warm_start(self._state))
         with self._pub_lock:
             if generation != self._generation:
                 return
@@ -260,10 +265,14 @@ class RegistrationNode(ServicesMixin, Node):
 
     def _publish_status(self) -> None:
         status = self.status()
+        loaded = self._loaded
         with self._pub_lock:
+            self._health.stale_after = self._settings.stale_after
+            health = health_of(status, self._health, self._ingest.journal_error,
+                               loaded.describe() if loaded is not None else "")
             self._pub_status.publish(status)
-            self._pub_diagnostics.publish(diagnostics_msg(
-                status, self.get_name(), status.header.stamp, self._ingest.journal_error))
+            self._pub_diagnostics.publish(diagnostics_msg(status, self.get_name(),
+                                                          status.header.stamp, health))
 
     def _save(self, state: ModelState) -> str:
         s = self._settings

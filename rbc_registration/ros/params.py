@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..io.state_paths import default_state_dir, state_root
-from ..pipeline.settings import SPECS, STATE_DIR_AUTO, Settings
+from ..pipeline.settings import REMOVED, SPECS, STATE_DIR_AUTO, Settings
 
 #: ROS parameter type names of the Python types of :data:`SPECS` defaults.
 ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string"}
@@ -33,9 +33,15 @@ def declare(node: Any) -> Settings:
     included). ``state_dir`` ``auto`` becomes the node's own directory,
     ``<state_root()>/<namespace tokens>.<node name>`` (:mod:`rbc_registration.io.state_paths`).
 
-    :raises ValueError: when a starting value is invalid (the node refuses to start).
+    :raises ValueError: when a starting value is invalid, or a removed parameter
+        (:data:`~rbc_registration.pipeline.settings.REMOVED`) is given (the node refuses to
+        start, naming what replaces it).
     """
     from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    for name in REMOVED:
+        if name in getattr(node, "_parameter_overrides", {}):
+            raise ValueError(f"parameter {name} no longer exists: {REMOVED[name]}")
 
     values = {}
     for name, spec in SPECS.items():

@@ -11,13 +11,13 @@ from typing import Any
 from geometry_msgs.msg import PointStamped
 from std_srvs.srv import Trigger
 
-from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, SetFiducialEnabled,
-                                             TakeSample)
+from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetFiducials,
+                                             SetFiducialEnabled, TakeSample)
 
 import re
 
 from ..core.scale import unit_mismatch
-from ..pipeline.settings import corrections_applied
+from ..pipeline.residuals import fiducial_residuals
 from ..pipeline.snapshot import snapshot_path
 from ..pipeline.state import EMPTY_STATE
 from . import conversions as conv
@@ -71,16 +71,15 @@ class ServicesMixin:
             tc = model.correct(points)
         except ValueError as exc:
             return [], str(exc), ""
-        applied = corrections_applied(s.apply_corrections, model.recommendation)
-        rho = model.rho if model.rho is not None else float("nan")
-        note = (f"corrections {'applied' if applied else 'not applied'} (mode "
-                f"{s.apply_corrections}, recommendation {model.recommendation}, rho {rho:.3g})")
+        decision = model.decision
+        note = (f"{decision.method}: corrections {'applied' if decision.apply else 'not applied'}"
+                f" (decision {decision.mode.value}); {decision.reason}")
         mismatch = None if tc.inside_hull.any() else unit_mismatch(model.working, points,
                                                                      tc.inside_hull)
         if mismatch:                    # cheap: only when no target is inside the hull
             note += f"; warning: {mismatch}"
             self.get_logger().warning(mismatch, throttle_duration_sec=10.0)
-        return conv.target_corrections_to_msgs(tc, z, applied, s.destination_frame,
+        return conv.target_corrections_to_msgs(tc, z, decision.method, s.destination_frame,
                                                [t.header.stamp for t in targets]), "", note
 
     def _on_correct_target(self, request: CorrectTarget.Request,
@@ -105,6 +104,17 @@ class ServicesMixin:
             return response
         results, error, note = self._correct(list(request.targets))
         response.success, response.results, response.message = not error, results, error or note
+        return response
+
+    def _on_get_fiducials(self, request: GetFiducials.Request,
+                          response: GetFiducials.Response) -> GetFiducials.Response:
+        state = self._state
+        method, rows = fiducial_residuals(state.model, self._ingest.fiducial_summaries())
+        response.fiducials = [conv.fiducial_residual_msg(r) for r in rows]
+        response.method = method
+        response.success = state.model is not None
+        response.message = (f"{len(rows)} fiducials; cv_error of {method}" if method
+                            else f"no model yet: {state.error}")
         return response
 
     def _on_set_fiducial_enabled(self, request: SetFiducialEnabled.Request,

@@ -11,14 +11,19 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rbc_registration_interfaces.msg import RegistrationStatus
 
+from ..io.calibration_model import expected_tre
+from ..pipeline.health import Health, HealthInputs, HealthMonitor, Level
 from ..pipeline.ingest import Counters
-from ..pipeline.settings import Settings, corrections_applied
+from ..pipeline.settings import Settings
 from ..pipeline.state import ModelState
-from .conversions import nanoseconds_to_stamp
+from .conversions import nanoseconds_to_stamp, stamp_to_seconds
 
 #: RegistrationStatus.sigma_source for each of the core's
 #: :data:`~rbc_registration.core.constants.SIGMA_SOURCES`.
 STATUS_SIGMA_SOURCE = {"given": "parameter", "repeats": "repeats", "unknown": "unknown"}
+#: DiagnosticStatus level of each health :class:`~rbc_registration.pipeline.health.Level`.
+DIAGNOSTIC_LEVEL = {Level.OK: DiagnosticStatus.OK, Level.WARN: DiagnosticStatus.WARN,
+                    Level.ERROR: DiagnosticStatus.ERROR}
 
 
 def _nan(value: Any) -> float:
@@ -43,7 +48,7 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
     for reason, count in counters.rejected.items():
         setattr(msg, f"n_rejected_{reason}", count)
     model = state.model
-    msg.correction_mode = settings.apply_corrections
+    msg.decision_mode = (state.settings or settings).decision
     msg.restoration = (state.settings or settings).restoration
     msg.interpolation = (state.settings or settings).interpolation
     msg.last_recompute = nanoseconds_to_stamp(state.stamp_ns)
@@ -59,40 +64,52 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
             f"{counters.journal_error}", msg.message)))
     msg.model_valid = model is not None
     if model is None:
-        msg.sigma = msg.rho = msg.fre_rms_uncorrected = msg.fre_rms_corrected = float("nan")
+        msg.sigma = msg.sigma_axis = msg.rho = float("nan")
+        msg.fre_rms_uncorrected = msg.fre_rms_corrected = float("nan")
+        msg.expected_tre_median = msg.expected_tre_bound = float("nan")
         msg.sigma_source = "unknown"
         msg.recommendation = "unknown"
         return msg
     msg.sigma = _nan(model.sigma)
+    msg.sigma_axis = _nan(model.sigma_axis)
     msg.sigma_source = STATUS_SIGMA_SOURCE.get(model.sigma_source, model.sigma_source)
     msg.sigma_l = [float(v) for v in model.sigma_l]
     msg.rho = _nan(model.rho)
     msg.recommendation = model.recommendation
     msg.fre_rms_uncorrected = float(model.uncorrected.fre_rms)
     msg.fre_rms_corrected = float(model.corrected.fre_rms)
-    msg.corrections_applied = corrections_applied(settings.apply_corrections,
-                                                  model.recommendation)
+    decision = model.decision
+    msg.decision_mode = decision.mode.value
+    msg.decision_method = decision.method
+    msg.decision_reason = decision.reason
+    msg.decision_confident = decision.confident
+    msg.corrections_applied = decision.apply
+    chosen = decision.candidate(decision.method)
+    msg.expected_tre_median = _nan(expected_tre(decision))
+    msg.expected_tre_bound = float(chosen.cv_bound) if chosen is not None else float("nan")
+    msg.cv_methods = [c.method for c in decision.candidates]
+    msg.cv_median = [float(c.cv_median) for c in decision.candidates]
+    msg.cv_rms = [float(c.cv_rms) for c in decision.candidates]
+    msg.cv_p_value = [_nan(c.p_value) for c in decision.candidates]
     return msg
 
 
+def health_of(status: RegistrationStatus, monitor: HealthMonitor, journal_error: str = "",
+              calibration: str = "") -> Health:
+    """The health (:mod:`rbc_registration.pipeline.health`) of ``status`` at its stamp."""
+    return monitor.assess(HealthInputs(
+        status.model_valid, status.message, status.decision_confident, status.decision_reason,
+        status.n_fiducials, status.decision_method, status.n_rejected, status.n_pending,
+        journal_error, calibration), stamp_to_seconds(status.header.stamp))
+
+
 def diagnostics_msg(status: RegistrationStatus, node_name: str, now: Time,
-                    journal_error: str = "") -> DiagnosticArray:
-    """``/diagnostics``: OK with a valid model whose corrections are trusted or off; WARN
-    without a model, with an uncertain or negative recommendation, or after rejections; ERROR
-    when the journal cannot be written."""
+                    health: Health) -> DiagnosticArray:
+    """``/diagnostics``: one status at the ``health`` level (:func:`health_of`), its reason in
+    the message, the status' numbers and the decision as key/values."""
     d = DiagnosticStatus(name=f"{node_name}: registration",
                          hardware_id=f"{status.working_frame_id}->{status.destination_frame_id}")
-    if journal_error:
-        d.level, d.message = DiagnosticStatus.ERROR, f"journal: {journal_error}"
-    elif not status.model_valid:
-        d.level, d.message = DiagnosticStatus.WARN, f"no model: {status.message}"
-    elif status.recommendation != "apply" and status.correction_mode != "off":
-        d.level = DiagnosticStatus.WARN
-        d.message = f"recommendation {status.recommendation} (rho {status.rho:.3g})"
-    else:
-        d.level = DiagnosticStatus.OK
-        d.message = (f"{status.n_fiducials} fiducials, corrections "
-                     f"{'applied' if status.corrections_applied else 'not applied'}")
+    d.level, d.message = DIAGNOSTIC_LEVEL[health.level], health.message
     values = {
         "n_fiducials": status.n_fiducials, "n_disabled": status.n_disabled,
         "n_measurements": status.n_measurements, "n_pending": status.n_pending,
@@ -102,9 +119,14 @@ def diagnostics_msg(status: RegistrationStatus, node_name: str, now: Time,
         "n_rejected_malformed": status.n_rejected_malformed,
         "n_rejected_stale": status.n_rejected_stale,
         "n_journal_failures": status.n_journal_failures,
-        "sigma [m]": status.sigma, "sigma_source": status.sigma_source, "rho": status.rho,
-        "recommendation": status.recommendation, "correction_mode": status.correction_mode,
+        "sigma [m]": status.sigma, "sigma_axis [m]": status.sigma_axis,
+        "sigma_source": status.sigma_source, "rho": status.rho,
+        "recommendation": status.recommendation, "decision": status.decision_mode,
+        "method": status.decision_method, "decision_confident": status.decision_confident,
         "corrections_applied": status.corrections_applied,
+        "expected_tre_median [m]": status.expected_tre_median,
+        "expected_tre_bound [m]": status.expected_tre_bound,
+        **{f"cv_median {m} [m]": v for m, v in zip(status.cv_methods, status.cv_median)},
         "fre_rms_uncorrected [m]": status.fre_rms_uncorrected,
         "fre_rms_corrected [m]": status.fre_rms_corrected,
     }

@@ -39,7 +39,7 @@ def test_register_matches_the_library(ra_files, interpolation):
     out = d / f"report_{interpolation}.json"
     proc = run("register", d / "fiducials.csv", "--targets", d / "targets.csv",
                "--interpolation", interpolation, "--json", out)
-    assert "rho" in proc.stdout and "median TRE_u" in proc.stdout
+    assert "rho" in proc.stdout and "TRE_u" in proc.stdout and "decision     cv -> " in proc.stdout
     rep = json.loads(out.read_text())
     model = build_model(cell.fiducial_means, cell.fiducial_truth,
                         ModelConfig(dimension=2, interpolation=interpolation),
@@ -53,9 +53,13 @@ def test_register_matches_the_library(ra_files, interpolation):
     np.testing.assert_allclose(rep["corrected"]["rotation"], model.corrected.rotation, atol=1e-12)
     np.testing.assert_allclose([t["tre_c"] for t in rep["targets"]], err.tre_c, rtol=1e-9)
     np.testing.assert_allclose([t["tre_u"] for t in rep["targets"]], err.tre_u, rtol=1e-9)
-    assert rep["summary"] == pytest.approx(err.summary())
-    assert {"id", "uncorrected", "corrected", "correction", "inside_hull",
-            "expected_error"} <= set(rep["targets"][0])
+    assert {k: rep["summary"][k] for k in err.summary()} == pytest.approx(err.summary())
+    assert set(rep["summary"]) == set(err.summary()) | {"tre_median", "fraction_within_bound"}
+    assert {"id", "destination", "expected_tre", "tre_bound", "tre", "tre_u", "tre_c",
+            "uncorrected", "corrected",
+            "correction", "inside_hull", "expected_error"} == set(rep["targets"][0])
+    assert rep["decision"]["method"] == model.decision.method
+    assert rep["sigma_axis"] == pytest.approx(model.sigma_axis)
     assert (rep["targets"][0]["expected_error"] is None) == (interpolation == "paper")
 
 

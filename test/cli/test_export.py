@@ -31,7 +31,7 @@ def node_state():
     """A served model state as the node builds it (metres) and its settings."""
     rng = np.random.default_rng(0)
     settings = Settings.from_mapping({"working_frame": "laser", "destination_frame": "base",
-                                      "apply_corrections": "on", "state_dir": ""})
+                                      "decision": "on", "state_dir": ""})
     acc = FiducialAccumulator(3, "laser", "base", 0.005, 0.0)
     truth = np.array([[x, y, z] for x in range(3) for y in range(3) for z in range(2)]) * 0.4
     for _repeat in range(2):
@@ -57,6 +57,9 @@ def test_export_of_a_node_snapshot(tmp_path, capsys, node_state, registration):
     assert (cal.parent_frame, cal.child_frame, cal.registration) == ("base", "laser",
                                                                      registration)
     assert cal.decision.mode == "on" and cal.decision.apply and cal.decision.method == "paper"
+    assert cal.decision.reason == model.decision.reason
+    assert cal.expected_tre == pytest.approx(model.decision.candidate("paper").cv_median,
+                                             rel=1e-12)
     assert cal.n_fiducials == 18 and cal.created.startswith("2023-11-14T22:13:20.5")
     assert cal.sigma == pytest.approx(model.sigma, rel=1e-12)
     # The node's own ~/save builds the same calibration from the state.
@@ -88,8 +91,11 @@ def test_export_of_a_register_report_in_mm(tmp_path, capsys):
                                atol=1e-9)
     assert cal.fre_rms == pytest.approx(data["corrected"]["fre_rms"] * 1e-3, rel=1e-12)
     assert cal.sigma_l == pytest.approx([v * 1e-3 for v in data["sigma_L"]], rel=1e-12)
-    assert cal.decision.mode == "auto"
-    assert cal.decision.apply == (data["recommendation"] == "apply")
+    dec = data["decision"]
+    assert (cal.decision.mode, cal.decision.method, cal.decision.apply, cal.decision.reason) == (
+        "cv", dec["method"], dec["apply"], dec["reason"])
+    assert cal.expected_tre == pytest.approx(dec["cv"][dec["method"]]["median"] * 1e-3,
+                                             rel=1e-12)
     assert "--frame-id world --child-frame-id tracker" in capsys.readouterr().out
 
 
@@ -100,6 +106,11 @@ def test_export_of_a_register_report_in_mm(tmp_path, capsys):
     ('{"unit": "in", "interpolation": "paper"}', "unit 'in'"),
     ('{"unit": "mm", "interpolation": "paper", "n_fiducials": 5, "sigma_L": [1.0], '
      '"recommendation": "apply"}', "corrected: missing"),
+    ('{"unit": "mm", "n_fiducials": 5, "sigma_L": [1.0], "corrected": {"rotation": [[1, 0], '
+     '[0, 1]], "translation": [0, 0], "fre_rms": 0}}', "decision: missing"),
+    ('{"unit": "mm", "n_fiducials": 5, "sigma_L": [1.0], "decision": {"mode": "cv"}, '
+     '"corrected": {"rotation": [[1, 0], [0, 1]], "translation": [0, 0], "fre_rms": 0}}',
+     "decision: needs mode, method, apply, reason and cv"),
     ("[]", "not a JSON object"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, content, message):

@@ -6,14 +6,14 @@ import re
 
 import pytest
 
-from rbc_registration.pipeline.settings import (SPECS, Settings, corrections_applied, validate,
-                                                validate_one)
+from rbc_registration.core.constants import DECISION_MODES
+from rbc_registration.pipeline.settings import REMOVED, SPECS, Settings, validate, validate_one
 
 
 def test_defaults_are_valid_and_cover_every_setting():
     s = Settings.from_mapping({})
     assert set(SPECS) == set(Settings.__dataclass_fields__)
-    assert s.dimension == 3 and s.apply_corrections == "auto" and s.sigma == 0.0
+    assert s.dimension == 3 and s.decision == "cv" and s.sigma == 0.0 and s.sigma_axis == 0.0
     for name, spec in SPECS.items():
         assert validate_one(name, spec.default) is None, name
         assert spec.description
@@ -28,7 +28,11 @@ def test_defaults_are_valid_and_cover_every_setting():
     ("sigma", -1e-3, "sigma must be in"),
     ("sigma", math.nan, "sigma must be finite"),
     ("rho_apply", -1.0, "rho_apply must be in"),
-    ("apply_corrections", "maybe", "apply_corrections must be one of auto, on, off"),
+    ("decision", "auto", "decision must be one of cv, rho, on, off"),
+    ("sigma_axis", -1e-3, "sigma_axis must be in"),
+    ("stale_after", 0.0, r"stale_after must be in \(0"),
+    ("apply_corrections", "on", "parameter apply_corrections no longer exists: it was replaced "
+                                "by 'decision'"),
     ("min_fiducials", 2, "min_fiducials must be in"),
     ("pair_slop", 0.0, r"pair_slop must be in \(0, 10\]"),
     ("merge_radius", 0.0, r"merge_radius must be in \(0"),
@@ -64,13 +68,18 @@ def test_replace_returns_a_new_validated_snapshot():
         s.replace(interpolation="nearest")
 
 
-@pytest.mark.parametrize("mode, recommendation, applied", [
-    ("auto", "apply", True), ("auto", "uncertain", False), ("auto", "do_not_apply", False),
-    ("auto", "unknown", False), ("on", "do_not_apply", True), ("on", "unknown", True),
-    ("off", "apply", False),
-])
-def test_corrections_applied_follows_the_rho_rule_unless_forced(mode, recommendation, applied):
-    assert corrections_applied(mode, recommendation) is applied
+def test_decision_choices_are_the_core_modes_and_the_removed_parameter_is_not_a_setting():
+    assert SPECS["decision"].choices == DECISION_MODES
+    assert not set(REMOVED) & set(SPECS)
+
+
+def test_sigma_and_sigma_axis_are_exclusive():
+    s = Settings.from_mapping({"sigma_axis": 1e-4})
+    assert s.sigma_axis == 1e-4 and s.sigma == 0.0
+    with pytest.raises(ValueError, match=r"give sigma or sigma_axis, not both \(sigma 0.0002, "
+                                         r"sigma_axis 0.0001; 0 = unknown\)"):
+        s.replace(sigma=2e-4)
+    assert s.replace(sigma=2e-4, sigma_axis=0.0).sigma == 2e-4
 
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

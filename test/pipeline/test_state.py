@@ -1,10 +1,13 @@
 """Model-state building from the enabled fiducials and the settings (pure: no rclpy)."""
 
+import math
+
 import numpy as np
 
 from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.constants import DecisionMode
 from rbc_registration.pipeline.settings import Settings
-from rbc_registration.pipeline.state import build_state, model_config
+from rbc_registration.pipeline.state import build_state, model_config, warm_start
 
 
 def test_build_state_needs_min_fiducials_and_reports_core_errors():
@@ -34,3 +37,29 @@ def test_build_state_builds_a_model():
     # every sigma_L is computed in the building (recompute) thread, not at the first status
     cached = state.model.restoration.sigma_l_cached
     assert len(cached) == 3 and np.isfinite(cached).all()
+
+
+def test_model_config_carries_the_decision_and_sigma_axis():
+    cfg = model_config(Settings.from_mapping({"sigma_axis": 1e-4, "decision": "rho",
+                                              "dimension": 2}))
+    assert cfg.decision is DecisionMode.RHO and cfg.sigma is None and cfg.sigma_axis == 1e-4
+    assert math.isclose(cfg.known_sigma, 1e-4 * math.sqrt(2))
+    assert model_config(Settings.from_mapping({})).decision is DecisionMode.CV
+
+
+def test_warm_start_passes_the_served_kriging_hyperparameters():
+    rng = np.random.default_rng(1)
+    acc = FiducialAccumulator(2, "tracker", "world", 1e-4, 0.0)
+    grid = np.array([[x, y] for x in np.linspace(0, 1, 6) for y in np.linspace(0, 1, 5)])
+    for k, p in enumerate(grid):
+        acc.add(f"f{k}", p + 2e-3 * np.sin(3 * p) + rng.normal(0, 1e-4, 2), p)
+    settings = Settings.from_mapping({"interpolation": "kriging", "dimension": 2})
+    first = build_state(acc.fiducial_set(), settings, 1)
+    hyper = warm_start(first)
+    assert hyper is not None and hyper == first.model.kriging_hyperparameters
+    again = build_state(acc.fiducial_set(), settings, 2, hyper)
+    assert again.model is not None
+    # Started at the optimum of the same data, the refined fit stays there.
+    np.testing.assert_allclose(again.model.kriging_hyperparameters, hyper, rtol=1e-3)
+    assert warm_start(build_state(acc.fiducial_set(), settings.replace(min_fiducials=100), 3)) \
+        is None

@@ -37,7 +37,7 @@ class TestSavedCalibration(NodeTestBase):
 
     def test_round_trip_through_a_restart_with_an_empty_state_dir(self, tmp_path):
         first_dir, second_dir = tmp_path / "first", tmp_path / "second"
-        first = self.make_node(state_dir=str(first_dir), apply_corrections="on")
+        first = self.make_node(state_dir=str(first_dir), decision="on")
         self.stream(first)
         model = self.recompute(first).model
         saved = self.srv(first, Trigger, "save")
