@@ -137,7 +137,8 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
             parent_frame=parent, child_frame=child, registration=registration,
             fre_rms=scale * _get(reg, "fre_rms", f"{where}: {registration}"),
             decision=decision, sigma=None if sigma is None else scale * sigma,
-            sigma_l=[scale * v for v in sigma_l], expected_tre=tre, n_fiducials=n_fiducials, clock=lambda: created_s)
+            sigma_l=[scale * v for v in sigma_l], expected_tre=tre, n_fiducials=n_fiducials,
+            clock=lambda: created_s)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
 

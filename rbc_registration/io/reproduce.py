@@ -12,7 +12,7 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from ..core.constants import CELLS, INTERPOLATIONS
+from ..core.constants import CANDIDATES, CELLS, INTERPOLATIONS
 from ..core.experiments import CellResult, run_cell
 from ..core.model import ModelConfig
 from ..core.synthetic import make_cell
@@ -64,11 +64,19 @@ def findings(results: dict[str, CellResult]) -> list[dict[str, Any]]:
     return out
 
 
+def destination_tre(r: CellResult) -> np.ndarray:
+    """TRE per target of the point the decision gives (``destination``), averaged data."""
+    tc = r.model.correct(r.cell.target_means)
+    return np.linalg.norm(tc.destination - r.cell.target_truth, axis=1)
+
+
 def _cell_json(r: CellResult) -> dict[str, Any]:
     m = r.model
     out: dict[str, Any] = {
-        "sigma": m.sigma, "sigma_L": list(m.sigma_l), "rho": m.rho,
-        "recommendation": m.recommendation, "n_fiducials": len(m.ids),
+        "sigma": m.sigma, "sigma_axis": m.sigma_axis, "sigma_L": list(m.sigma_l), "rho": m.rho,
+        "recommendation": m.recommendation, "decision": m.decision.to_dict(),
+        "tre_destination_median": float(np.median(destination_tre(r))),
+        "n_fiducials": len(m.ids),
         "n_targets": len(r.cell.target_ids), "repeats": r.cell.spec.repeats,
         "instantaneous_sets": None if r.instantaneous_mismatch is None
         else int(r.instantaneous_mismatch[0].shape[0]),
@@ -91,12 +99,18 @@ def _cell_json(r: CellResult) -> dict[str, Any]:
 def table(results: dict[str, CellResult]) -> str:
     """Table 1 analogue plus TRE medians, as Markdown."""
     rows = ["| cell | sigma [mm] | sigma_L0 [mm] | rho | sigma_L1 [mm] | sigma_L2 [mm] "
-            "| decision |",
-            "|---|---|---|---|---|---|---|"]
+            "| rho rule | decision (cv) | CV median u / paper / kriging [mm] | TRE median of "
+            "the decision [mm] |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     for cell, r in results.items():
         m = r.model
+        d = m.decision
+        cv = " / ".join("n/a" if s is None or not s.available else f"{s.cv_median:.3g}"
+                        for s in map(d.candidate, CANDIDATES))
         rows.append(f"| {cell} | {m.sigma:.3g} | {m.sigma_l[0]:.3g} | {m.rho:.3g} | "
-                    f"{m.sigma_l[1]:.2g} | {m.sigma_l[2]:.2g} | {m.recommendation} |")
+                    f"{m.sigma_l[1]:.2g} | {m.sigma_l[2]:.2g} | {m.recommendation} | "
+                    f"{d.method}{'' if d.confident else ' (uncertain)'} | {cv} | "
+                    f"{np.median(destination_tre(r)):.3g} |")
     rows += ["", "| cell | interpolation | TRE_u median | TRE_c median | improved | "
              "TRE_u^(n) median | TRE_c^(n) median |", "|---|---|---|---|---|---|---|"]
     for cell, r in results.items():

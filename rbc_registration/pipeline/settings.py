@@ -71,6 +71,11 @@ SPECS: dict[str, Spec] = {
                      "registration with 95 % confidence), 'rho' (the paper's rule on rho, needs "
                      "sigma), 'on' (always the configured interpolation), 'off' (never). rho is "
                      "reported in every mode.", choices=DECISION_MODES),
+    "kriging_warm_start": Spec(False, "Start each rebuild's kriging fit from the served "
+                               "model's hyper-parameters (faster when few fiducials changed). "
+                               "Off by default: a warm-started fit ends within the optimiser's "
+                               "tolerance of a cold one, not bit for bit, so a restart from the "
+                               "journal (always a cold fit) would answer ~1e-13 m differently."),
     "rho_reject": Spec(1.0, "rho = sigma_L0 / sigma below this: the paper's rule says do not "
                        "correct (paper: rho < 1 makes registration worse). Must be <= "
                        "rho_apply.", low=0.0, high=1e6),
@@ -161,6 +166,7 @@ class Settings:
     sigma: float
     sigma_axis: float
     decision: str
+    kriging_warm_start: bool
     rho_reject: float
     rho_apply: float
     min_fiducials: int

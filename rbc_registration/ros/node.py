@@ -204,9 +204,10 @@ class RegistrationNode(ServicesMixin, Node):
         generation = self._generation
         fiducials = self._ingest.fiducial_set()
         disabled_points = self._ingest.disabled_points()
-        # The served model's kriging hyper-parameters start the next fit (warm start).
-        state = self._build(fiducials, self._settings, self.get_clock().now().nanoseconds,
-                            warm_start(self._state))
+        settings = self._settings
+        # kriging_warm_start: the served model's kriging hyper-parameters start the next fit.
+        state = self._build(fiducials, settings, self.get_clock().now().nanoseconds,
+                            warm_start(self._state) if settings.kriging_warm_start else None)
         with self._pub_lock:
             if generation != self._generation:
                 return

@@ -41,3 +41,19 @@ def test_outputs_written(doc):
         assert (out / name).stat().st_size > 5000          # a real PNG, not an empty file
     figures = found["figures"]
     assert sum("kriging" in n for n in figures) == sum("paper" in n for n in figures)
+
+
+def test_table1_reports_the_decision(doc):
+    found, out = doc
+    table = (out / "table1.md").read_text()
+    assert "| rho rule | decision (cv) |" in table.splitlines()[0]
+    for name, cell in found["cells"].items():
+        dec = cell["decision"]
+        assert dec["mode"] == "cv" and dec["method"] in ("uncorrected", "paper", "kriging")
+        row = [line for line in table.splitlines() if line.startswith(f"| {name} | ")][0]
+        assert f"| {cell['recommendation']} | {dec['method']}" in row
+        assert f"| {cell['tre_destination_median']:.3g} |" in row
+    a = found["cells"]["A"]   # strong smooth bias: the decision corrects, TRE drops sharply
+    assert a["decision"]["apply"]
+    tre_u = a["interpolations"]["paper"]["summary"]["tre_u_median"]
+    assert a["tre_destination_median"] < 0.5 * tre_u

@@ -212,4 +212,5 @@ def answer_key(response: Any) -> tuple:
             tuple(point_xyz(response.corrected.point)),
             tuple(point_xyz(response.uncorrected.point)),
             tuple(point_xyz(response.correction)), response.correction_applied,
-            response.inside_hull, num(response.expected_error))
+            response.inside_hull, num(response.expected_error), response.method,
+            num(response.expected_tre), num(response.tre_bound))

@@ -16,10 +16,12 @@ from rbc_registration.ros import conversions as conv  # noqa: E402
 from rbc_registration.ros import fast_msgs  # noqa: E402
 
 
-def slow_target_corrections_to_msgs(tc, z, applied, destination_frame, stamps):
+def slow_target_corrections_to_msgs(tc, z, method, destination_frame, stamps):
     """The conversion as it was before fast_msgs (generated constructors, then overwritten)."""
+    applied = method != "uncorrected"
     corrected = conv._to_xyz(np.asarray(tc.corrected), z)
     uncorrected = conv._to_xyz(np.asarray(tc.uncorrected), z)
+    destination = conv._to_xyz(np.asarray(tc.destination), z)
     correction = conv._to_xyz(np.asarray(tc.correction), np.zeros_like(z))
     inside = np.asarray(tc.inside_hull, dtype=bool)
     expected = np.asarray(tc.expected_error, dtype=np.float64)
@@ -29,15 +31,18 @@ def slow_target_corrections_to_msgs(tc, z, applied, destination_frame, stamps):
                                      z=float(corrected[k][2])))
         u = PointStamped(point=Point(x=float(uncorrected[k][0]), y=float(uncorrected[k][1]),
                                      z=float(uncorrected[k][2])))
-        for point in (c, u):
+        d = PointStamped(point=Point(x=float(destination[k][0]), y=float(destination[k][1]),
+                                     z=float(destination[k][2])))
+        for point in (c, u, d):
             point.header.frame_id = destination_frame
             point.header.stamp = stamps[k]
         out.append(TargetCorrection(
-            destination=c if applied else u, corrected=c, uncorrected=u,
+            destination=d if applied else u, corrected=c, uncorrected=u,
             correction=Vector3(x=float(correction[k][0]), y=float(correction[k][1]),
                                z=float(correction[k][2])),
             correction_applied=bool(applied), inside_hull=bool(inside[k]),
-            expected_error=float(expected[k])))
+            expected_error=float(expected[k]), method=method,
+            expected_tre=float(tc.expected_tre[k]), tre_bound=float(tc.tre_bound[k])))
     return out
 
 
@@ -49,34 +54,41 @@ def test_builders_write_every_slot(cls):
     assert sorted(cls.__slots__) == sorted(["_check_fields", *("_" + f for f in fields)])
 
 
-def random_corrections(rng, k, d, kriging):
+def random_corrections(rng, k, d, kriging, method):
+    corrected, uncorrected = rng.normal(size=(k, d)), rng.normal(size=(k, d))
+    destination = uncorrected if method == "uncorrected" else (
+        corrected if method == "paper" else rng.normal(size=(k, d)))
     return TargetCorrections(
-        corrected=rng.normal(size=(k, d)), uncorrected=rng.normal(size=(k, d)),
+        corrected=corrected, uncorrected=uncorrected,
         correction=rng.normal(scale=1e-3, size=(k, d)), inside_hull=rng.random(k) < 0.5,
-        expected_error=rng.random(k) if kriging else np.full(k, np.nan))
+        expected_error=rng.random(k) if kriging else np.full(k, np.nan),
+        destination=destination, expected_tre=rng.random(k),
+        tre_bound=rng.random(k) if k > 1 else np.full(k, np.nan))
 
 
 @pytest.mark.parametrize("seed", range(6))
 def test_target_corrections_equal_the_generated_way(seed):
     rng = np.random.default_rng(seed)
-    d, k, applied = (2, 3)[seed % 2], (1, 7, 40)[seed % 3], seed % 4 < 2
-    tc = random_corrections(rng, k, d, kriging=seed % 3 == 0)
+    d, k = (2, 3)[seed % 2], (1, 7, 40)[seed % 3]
+    method = ("uncorrected", "paper", "kriging")[seed % 3]
+    applied = method != "uncorrected"
+    tc = random_corrections(rng, k, d, kriging=seed % 3 == 0, method=method)
     z = rng.normal(size=k)
     stamps = [Time(sec=int(s), nanosec=int(n)) for s, n in zip(rng.integers(0, 2**31, k),
                                                              rng.integers(0, 10**9, k))]
     frame = ("world", "robot/base_link", "wörld")[seed % 3]
-    fast = conv.target_corrections_to_msgs(tc, z, applied, frame, stamps)
-    slow = slow_target_corrections_to_msgs(tc, z, applied, frame, stamps)
+    fast = conv.target_corrections_to_msgs(tc, z, method, frame, stamps)
+    slow = slow_target_corrections_to_msgs(tc, z, method, frame, stamps)
     assert len(fast) == len(slow) == k
     for f, s in zip(fast, slow):
         for name in fast_msgs.FIELDS[TargetCorrection]:
             a, b = getattr(f, name), getattr(s, name)
             assert type(a) is type(b), name
-            if name != "expected_error":
+            if name not in ("expected_error", "tre_bound"):
                 assert a == b, name
-        assert (f.expected_error == s.expected_error
-                or (np.isnan(f.expected_error) and np.isnan(s.expected_error)))
-        assert (f.destination is f.corrected) == (s.destination is s.corrected) == applied
+            else:
+                assert a == b or (np.isnan(a) and np.isnan(b)), name
+        assert (f.destination is f.uncorrected) == (s.destination is s.uncorrected) != applied
         assert serialize_message(f) == serialize_message(s)
         assert repr(f) == repr(s)
 

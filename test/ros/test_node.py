@@ -126,16 +126,26 @@ class TestLiveRegistration(NodeTestBase):
         np.testing.assert_array_equal(state.model.corrections, expected.model.corrections)
         self.assert_answers_match_core(node, expected, self.cell["targets"])
         r = self.correct(node, self.cell["targets"][0])
-        assert r.correction_applied and r.destination == r.corrected
+        decision = expected.model.decision
+        tc0 = expected.model.correct(self.cell["targets"][:1])
+        assert r.correction_applied and decision.apply and r.method == decision.method
+        np.testing.assert_allclose(point_xyz(r.destination.point), tc0.destination[0], atol=1e-12)
+        assert r.expected_tre == pytest.approx(tc0.expected_tre[0], rel=1e-9)
+        assert r.tre_bound == pytest.approx(tc0.tre_bound[0], rel=1e-9) and r.tre_bound > 0
         assert r.destination.header.frame_id == "world"
-        assert "recommendation apply" in r.message
+        assert r.message.startswith(f"{decision.method}: corrections applied (decision cv)")
+        assert decision.reason in r.message
 
         batch = self.srv(node, CorrectTargets, "correct_targets", CorrectTargets.Request(
             targets=[target_msg(t) for t in self.cell["targets"]]))
         assert batch.success and len(batch.results) == len(self.cell["targets"])
         tc = expected.model.correct(self.cell["targets"])
         np.testing.assert_allclose([point_xyz(x.destination.point) for x in batch.results],
-                                   tc.corrected, atol=1e-12)
+                                   tc.destination, atol=1e-12)
+        np.testing.assert_allclose([x.expected_tre for x in batch.results], tc.expected_tre,
+                                   rtol=1e-9)
+        assert {x.method for x in batch.results} == {decision.method}
+        assert decision.reason in batch.message
 
         status = self.latest(node, RegistrationStatus, f"/{node.get_name()}/status",
                              predicate=lambda m: m.model_valid)
@@ -143,6 +153,15 @@ class TestLiveRegistration(NodeTestBase):
         assert status.sigma_source == "repeats" and status.recommendation == "apply"
         assert status.corrections_applied and status.fre_rms_corrected < 1e-9
         assert len(status.sigma_l) == 3 and status.rho == pytest.approx(expected.model.rho)
+        assert status.sigma_axis == pytest.approx(expected.model.sigma_axis, rel=1e-12)
+        assert (status.decision_mode, status.decision_method, status.decision_reason,
+                status.decision_confident) == ("cv", decision.method, decision.reason, True)
+        chosen = decision.candidate(decision.method)
+        assert status.expected_tre_median == pytest.approx(chosen.cv_median, rel=1e-12)
+        assert status.expected_tre_bound == pytest.approx(chosen.cv_bound, rel=1e-12)
+        assert list(status.cv_methods) == [c.method for c in decision.candidates]
+        np.testing.assert_allclose(status.cv_median, [c.cv_median for c in decision.candidates],
+                                   rtol=1e-12)
 
     def test_transforms_are_latched_for_late_joiners(self):
         node = self.make_node()
@@ -287,23 +306,38 @@ class TestBadInput(NodeTestBase):
         desc = node.describe_parameter("merge_radius")
         assert desc.type == ParameterType.PARAMETER_DOUBLE and desc.floating_point_range
 
-    def test_apply_corrections_override(self):
+    def test_decision_modes(self):
         node = self.make_node()
         self.stream(node)
         self.recompute(node)
         target = self.cell["targets"][1]
-        for mode, applied in (("off", False), ("on", True), ("auto", True)):
-            assert node.set_parameters([Parameter("apply_corrections", value=mode)])[0].successful
+        for mode, applied in (("off", False), ("on", True), ("cv", True)):
+            assert node.set_parameters([Parameter("decision", value=mode)])[0].successful
+            state = self.recompute(node)
+            assert state.model.decision.mode.value == mode
             r = self.correct(node, target)
-            assert r.correction_applied is applied and f"mode {mode}" in r.message
-            assert r.destination == (r.corrected if applied else r.uncorrected)
-        # A known sigma that makes rho small: auto stops applying.
-        assert node.set_parameters([Parameter("sigma", value=0.01)])[0].successful
+            assert r.correction_applied is applied and f"(decision {mode})" in r.message
+            assert r.method == state.model.decision.method
+            if mode != "cv":
+                assert r.destination == (r.corrected if applied else r.uncorrected)
+        # The paper's rule with a known sigma that makes rho small: not applied.
+        assert node.set_parameters([Parameter("decision", value="rho"),
+                                    Parameter("sigma", value=0.01)])[0].successful
         state = self.recompute(node)
         assert state.model.recommendation == "do_not_apply"
         r = self.correct(node, target)
-        assert r.success and not r.correction_applied
+        assert r.success and not r.correction_applied and r.method == "uncorrected"
+        assert "The paper's rule: rho = " in r.message
         assert node.status().sigma_source == "parameter"
+        # sigma_axis in place of sigma: both at once is refused, the same noise gives the same rho.
+        both = node.set_parameters([Parameter("sigma_axis", value=0.01)])[0]
+        assert not both.successful and "give sigma or sigma_axis, not both" in both.reason
+        assert node.set_parameters([Parameter("sigma", value=0.0),
+                                    Parameter("sigma_axis", value=0.01 / 3 ** 0.5)])[
+            0].successful
+        again = self.recompute(node)
+        assert again.model.rho == pytest.approx(state.model.rho, rel=1e-12)
+        assert node.status().sigma_axis == pytest.approx(0.01 / 3 ** 0.5, rel=1e-12)
 
 
 class TestServicesAndPersistence(NodeTestBase):

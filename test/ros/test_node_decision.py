@@ -1,0 +1,186 @@
+"""registration_node in process: the decision in ~/status, /diagnostics levels for each
+condition, ~/get_fiducials (a planted outlier stands out), the removed apply_corrections."""
+
+import math
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("rbc_registration_interfaces.msg")
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from rbc_registration_interfaces.msg import FiducialPair  # noqa: E402
+from rbc_registration_interfaces.srv import GetFiducials, SetFiducialEnabled  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+from rbc_registration.ros.node import RegistrationNode  # noqa: E402
+from ros_helpers import expected_state, make_cell, pair_msg, wait_for  # noqa: E402
+from test_node import NodeTestBase  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+
+class TestDecisionInStatusAndDiagnostics(NodeTestBase):
+
+    def diagnostics(self, node, predicate=lambda s: True):
+        """The newest /diagnostics status of ``node`` satisfying ``predicate``."""
+        name = node.get_name()
+        got = []
+        sub = self.ros.client.create_subscription(DiagnosticArray, "/diagnostics", got.append, 10)
+
+        def mine():
+            return [s for m in got for s in m.status if s.name.startswith(name) and predicate(s)]
+        try:
+            wait_for(lambda: mine(), what="a /diagnostics status")
+            return mine()[-1]
+        finally:
+            self.ros.client.destroy_subscription(sub)
+
+    @staticmethod
+    def values(status):
+        return {kv.key: kv.value for kv in status.values}
+
+    def test_error_without_a_model_then_ok_with_a_confident_decision(self):
+        node = self.make_node()
+        d = self.diagnostics(node)
+        assert d.level == DiagnosticStatus.ERROR and d.message.startswith("no model: ")
+        self.stream(node)
+        state = self.recompute(node)
+        decision = state.model.decision
+        assert decision.confident and decision.apply
+        d = self.diagnostics(node, lambda s: s.level != DiagnosticStatus.ERROR)
+        assert d.level == DiagnosticStatus.OK, d.message
+        assert d.message == f"48 fiducials, decision {decision.method}: {decision.reason}"
+        v = self.values(d)
+        assert (v["decision"], v["method"]) == ("cv", decision.method)
+        assert float(v["sigma_axis [m]"]) == pytest.approx(state.model.sigma_axis, rel=1e-9)
+        assert float(v["rho"]) == pytest.approx(state.model.rho, rel=1e-9)
+        assert "sigma [m]" in v and "expected_tre_median [m]" in v
+
+    def test_ok_when_a_confident_decision_does_not_apply_corrections(self):
+        node = self.make_node(decision="off")
+        self.stream(node)
+        self.recompute(node)
+        d = self.diagnostics(node, lambda s: s.level != DiagnosticStatus.ERROR)
+        assert d.level == DiagnosticStatus.OK and "decision uncorrected" in d.message
+        assert not node.status().corrections_applied
+
+    def test_warn_for_an_uncertain_decision(self):
+        sigma_l0 = expected_state(self.cell).model.sigma_l[0]
+        node = self.make_node(decision="rho", sigma=sigma_l0 / 1.7)   # rho between 1 and 2.5
+        self.stream(node)
+        state = self.recompute(node)
+        assert state.model.recommendation == "uncertain" and not state.model.decision.confident
+        d = self.diagnostics(node, lambda s: s.level != DiagnosticStatus.ERROR)
+        assert d.level == DiagnosticStatus.WARN
+        assert d.message.startswith("uncertain decision: The paper's rule: rho = ")
+        assert not node.status().decision_confident
+
+    def test_warn_for_rejections_since_the_last_report(self):
+        node = self.make_node()
+        self.stream(node)
+        self.recompute(node)
+        pub = self.publisher(node, FiducialPair, "fiducial_pairs")
+        pub.publish(pair_msg(self.cell, 0, frame="elsewhere"))
+        wait_for(lambda: node.status().n_rejected == 1, what="rejection")
+        d = self.diagnostics(node, lambda s: "rejected" in s.message)
+        assert d.level == DiagnosticStatus.WARN
+        assert "1 measurement(s) rejected since the last report" in d.message
+        # The next reports see no new rejection: OK again.
+        d = self.diagnostics(node, lambda s: s.level == DiagnosticStatus.OK)
+        assert "rejected" not in d.message
+
+    def test_warn_for_a_stale_model(self):
+        node = self.make_node(stale_after=0.05)
+        self.stream(node)
+        self.recompute(node)
+        assert node.set_parameters([Parameter("debounce_period", value=60.0)])[0].successful
+        self.stream(node, range(3))   # accepted, but not rebuilt for minutes
+        d = self.diagnostics(node, lambda s: "stale model" in s.message)
+        assert d.level == DiagnosticStatus.WARN
+        assert "3 measurement(s) waiting for" in d.message and "stale_after 0.05 s" in d.message
+
+
+class TestGetFiducials(NodeTestBase):
+
+    @classmethod
+    def setup_class(cls):
+        super().setup_class()
+        cls.cell = make_cell(seed=4, bias=2e-4)
+        cls.outlier = 17
+        working = cls.cell["working"].copy()
+        working[cls.cell["fid"] == cls.outlier] += [2e-3, -1.5e-3, 1e-3]   # a misread hole
+        cls.cell = {**cls.cell, "working": working}
+        cls.n = len(cls.cell["fid"])
+
+    def test_a_planted_outlier_has_the_largest_residuals(self):
+        node = self.make_node()
+        empty = self.srv(node, GetFiducials, "get_fiducials")
+        assert not empty.success and empty.message.startswith("no model yet")
+        assert not empty.fiducials
+        self.stream(node)
+        state = self.recompute(node)
+        r = self.srv(node, GetFiducials, "get_fiducials")
+        assert r.success and r.method == state.model.decision.method
+        ids = [f.fiducial_id for f in r.fiducials]
+        assert ids == list(self.cell["ids"])
+        planted = self.cell["ids"][self.outlier]
+        for field in ("correction_norm", "cv_error", "cv_error_uncorrected",
+                      "residual_uncorrected"):
+            values = [getattr(f, field) for f in r.fiducials]
+            assert ids[int(np.argmax(values))] == planted, field
+        model = expected_state(self.cell).model
+        k = list(model.ids).index(planted)
+        f = r.fiducials[ids.index(planted)]
+        assert f.enabled and f.n_measurements == 3
+        assert f.correction_norm == pytest.approx(np.linalg.norm(model.corrections[k]), rel=1e-9)
+        assert f.cv_error_uncorrected == pytest.approx(
+            model.decision.cross_validation.errors["uncorrected"][k], rel=1e-9)
+        np.testing.assert_allclose([f.working_mean.x, f.working_mean.y, f.working_mean.z],
+                                   model.working[k], rtol=1e-12)
+        np.testing.assert_allclose(
+            [f.destination_mean.x, f.destination_mean.y, f.destination_mean.z],
+            model.destination[k], rtol=1e-12)
+        # Disabled: still listed, model values NaN.
+        assert self.srv(node, SetFiducialEnabled, "set_fiducial_enabled",
+                        SetFiducialEnabled.Request(fiducial_id=planted, enabled=False)).success
+        self.recompute(node)
+        r = self.srv(node, GetFiducials, "get_fiducials")
+        f = [f for f in r.fiducials if f.fiducial_id == planted][0]
+        assert not f.enabled and f.n_measurements == 3 and len(r.fiducials) == 48
+        assert all(math.isnan(getattr(f, n)) for n in ("correction_norm", "cv_error",
+                                                        "cv_error_uncorrected",
+                                                        "residual_uncorrected"))
+
+
+class TestRemovedParameter(NodeTestBase):
+
+    def test_apply_corrections_at_start_names_its_replacement(self):
+        with pytest.raises(ValueError, match="parameter apply_corrections no longer exists: it "
+                                             "was replaced by 'decision'"):
+            RegistrationNode("reg_removed", context=self.ros.context,
+                             parameter_overrides=[Parameter("apply_corrections", value="on"),
+                                                  Parameter("state_dir", value="")])
+
+
+class TestWarmStart(NodeTestBase):
+
+    def test_the_served_hyperparameters_start_the_next_fit_when_enabled(self):
+        from rbc_registration.pipeline.state import build_state
+
+        seen = []
+
+        def recording_build(fiducials, settings, stamp_ns, previous=None):
+            seen.append(previous)
+            return build_state(fiducials, settings, stamp_ns, previous)
+
+        node = self.make_node(kriging_warm_start=True, node_options={"build": recording_build})
+        self.stream(node)
+        first = self.recompute(node).model.kriging_hyperparameters
+        assert first is not None   # cv cross-validates kriging: it is always fitted
+        self.recompute(node)
+        assert seen[-1] == first
+        assert node.set_parameters([Parameter("kriging_warm_start", value=False)])[0].successful
+        self.recompute(node)
+        assert seen[-1] is None
