@@ -125,14 +125,14 @@ def decision_markdown(decision: dict[str, Any]) -> list[str]:
     lines = ["## Decision", "",
              f"Mode **{decision['mode']}**: targets get **{decision['method']}** (corrections "
              f"{'applied' if decision['apply'] else 'not applied'}; "
-             f"{'confident' if decision['confident'] else 'uncertain'}). {decision['reason']}",
+             f"{'confident' if decision['confident'] else 'uncertain'}). {md_text(decision['reason'])}",
              "", f"Cross-validated error per candidate ({folds['kind']}, {folds['n_folds']} "
              f"folds; mm):", "",
              "| candidate | median | rms | 95 % bound | Wilcoxon W+ | p-value |",
              "|---|---|---|---|---|---|"]
     for name, c in decision["cv"].items():
         if not c["available"]:
-            lines.append(f"| {name} | n/a | n/a | n/a | | {c['note']} |")
+            lines.append(f"| {name} | n/a | n/a | n/a | | {md_text(c['note'])} |")
             continue
         stat = "" if c["statistic"] is None else f"{c['statistic']:.0f}"
         p = "" if c["p_value"] is None else f"{c['p_value']:.2g}"

@@ -103,11 +103,13 @@ def test_evaluate_report_md_and_terminal_escape_ids_and_paths(hostile_files, tmp
     # the bag path is a code span (literal in CommonMark, HTML included); no "<" anywhere else
     assert all("<" not in line for line in lines if not line.startswith("Bag "))
     assert [line for line in lines if line.startswith("#")] == [
-        "# Evaluation of " + escape.markdown(bag.name), "## Table 1 values", "## Targets"]
+        "# Evaluation of " + escape.markdown(bag.name), "## Table 1 values", "## Decision",
+        "## Targets"]
     assert any(line.startswith("Bag " + escape.markdown_code(bag) + ":") for line in lines)
-    head = lines.index("| target | TRE_u | TRE_c | dTRE | inside hull |")
+    head = lines.index("| target | TRE | expected TRE | 95 % bound | TRE_u | TRE_c | dTRE "
+                       "| inside hull |")
     rows = lines[head + 2:head + 2 + n_targets]
-    assert all(unescaped_pipes(r) == 6 for r in rows) and lines[head + 2 + n_targets] == ""
+    assert all(unescaped_pipes(r) == 9 for r in rows) and lines[head + 2 + n_targets] == ""
     assert rows[0].startswith("| " + escape.markdown(HOSTILE + "0") + " |")
     prose = [line for line in lines if not line.startswith(("Bag ", "!["))]
     bare = re.sub(r"\\.", "", "\n".join(prose))
