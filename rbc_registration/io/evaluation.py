@@ -125,7 +125,8 @@ def decision_markdown(decision: dict[str, Any]) -> list[str]:
     lines = ["## Decision", "",
              f"Mode **{decision['mode']}**: targets get **{decision['method']}** (corrections "
              f"{'applied' if decision['apply'] else 'not applied'}; "
-             f"{'confident' if decision['confident'] else 'uncertain'}). {md_text(decision['reason'])}",
+             f"{'confident' if decision['confident'] else 'uncertain'}). "
+             f"{md_text(decision['reason'])}",
              "", f"Cross-validated error per candidate ({folds['kind']}, {folds['n_folds']} "
              f"folds; mm):", "",
              "| candidate | median | rms | 95 % bound | Wilcoxon W+ | p-value |",
