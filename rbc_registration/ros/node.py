@@ -16,13 +16,11 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, TransformStamped
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.exceptions import ParameterException, ParameterNotDeclaredException
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
@@ -37,7 +35,6 @@ from ..pipeline.files import StateDirLock
 from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
 from ..pipeline.journal import Journal
-from ..pipeline.settings import SPECS
 from ..pipeline.snapshot import snapshot_json, snapshot_path, tidy_state_dir, write_atomic
 from ..pipeline.state import EMPTY_STATE, ModelState, build_state, warm_start
 from ..pipeline.worker import LatestWriter, RecomputeWorker
@@ -45,6 +42,7 @@ from . import conversions as conv
 from . import params, samples, saved
 from .guards import guard_input, guard_service
 from .markers import markers_msg
+from .param_callbacks import ParametersMixin
 from .services import ServicesMixin
 from .status import diagnostics_msg, health_of, status_msg
 from .tf_static import StaticTf
@@ -60,7 +58,7 @@ INPUT = {"reliable": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
                                    reliability=ReliabilityPolicy.BEST_EFFORT)}
 
 
-class RegistrationNode(ServicesMixin, Node):
+class RegistrationNode(ServicesMixin, ParametersMixin, Node):
     """The registration node (see the module docstring and msg_docs/README.md).
 
     :param build: builds the :class:`ModelState` from the fiducials, settings and a stamp
@@ -281,46 +279,6 @@ class RegistrationNode(ServicesMixin, Node):
         self._write_snapshot(path, snapshot_json(state, s.working_frame, s.destination_frame,
                                                  s.dimension))
         return path
-
-    # -- parameters ---------------------------------------------------------------------------
-    def _apply_descriptor(self, parameter: Parameter, *args: Any, **kwargs: Any) -> Any:
-        """rclpy's type check, with a reason naming the parameter and the types (rclpy 3.11+
-        prints the type codes only: "expected '3' got '2'")."""
-        result = super()._apply_descriptor(parameter, *args, **kwargs)
-        if not result.successful and result.reason.startswith("Wrong parameter type"):
-            result.reason = params.type_error(parameter.name, parameter.type_.name,
-                                              parameter.value)
-        return result
-
-    def _check_undeclared_parameters(self, parameter_list: list[Parameter]) -> None:
-        """rclpy's check, naming the unknown parameters (rclpy lists none: "[]")."""
-        unknown = [p.name for p in parameter_list if not self.has_parameter(p.name)]
-        if unknown and not getattr(self, "_allow_undeclared_parameters", False):
-            raise ParameterNotDeclaredException(unknown)
-        super()._check_undeclared_parameters(parameter_list)
-
-    def _on_set_parameters(self, parameters: list[Parameter]) -> Any:
-        changes = {p.name: p.value for p in parameters if p.name in SPECS}
-        error = samples.source_error(changes.get("sample_destination_source", ""))
-        if error:
-            return SetParametersResult(successful=False, reason=error)
-        try:
-            self._settings.replace(**changes)
-        except ValueError as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        return SetParametersResult(successful=True)
-
-    def _on_parameters_set(self, parameters: list[Parameter]) -> None:
-        changes = {p.name: p.value for p in parameters if p.name in SPECS}
-        if not changes:
-            return
-        self._settings = self._settings.replace(**changes)
-        self._ingest.configure(self._settings)
-        if "tf_broadcast" in changes:
-            with self._pub_lock:
-                self._publish_tf()
-        self.get_logger().info(f"parameters changed: {changes}")
-        self._worker.notify()
 
     def destroy_node(self) -> None:
         """Stop the recompute and snapshot threads, close the journal, release ``state_dir``,
