@@ -13,6 +13,7 @@ import pytest
 from rbc_registration import cli
 from rbc_registration.core.constants import M_PER_MM
 from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io import escape
 from rbc_registration.io.bag.records import DEFAULT_TOPICS, OutMessage
 from rbc_registration.io.bag.synthetic import cell_messages
 from rbc_registration.io.bag.writer import write_bag
@@ -168,7 +169,8 @@ def test_report_directory(tmp_path, capsys):
     assert "![delta_tre.png](delta_tre.png)" in md
     rep = json.loads((out / "report.json").read_text())
     dec = rep["decision"]
-    assert "## Decision" in md and f"targets get **{dec['method']}**" in md and dec["reason"] in md
+    assert "## Decision" in md and f"targets get **{dec['method']}**" in md
+    assert escape.markdown(dec["reason"]) in md          # the reason, escaped like all text
     assert "![cv_errors.png](cv_errors.png)" in md
     for name in dec["cv"]:
         assert f"| {name} | {1e3 * dec['cv'][name]['median']:.4g} |" in md
