@@ -77,13 +77,18 @@ def test_records_of_the_wrong_types_are_skipped(tmp_path, bad):
     assert acc.n_measurements == 1 and skipped == 1 and acc.is_enabled("H0")
 
 
-def test_a_flipped_digit_is_detected(tmp_path):
-    j = Journal(str(tmp_path), HEADER)
+def write_good(state_dir):
+    """A version 2 journal of the GOOD records in ``state_dir``; returns its path."""
+    j = Journal(str(state_dir), HEADER)
     j.load()
     for r in GOOD:
         j.append(r)
     j.close()
-    path = tmp_path / JOURNAL_NAME
+    return state_dir / JOURNAL_NAME
+
+
+def test_a_flipped_digit_is_detected(tmp_path):
+    path = write_good(tmp_path)
     lines = path.read_bytes().split(b"\n")
     assert b"1.2" in lines[3]
     lines[3] = lines[3].replace(b"1.2", b"1.3", 1)        # one digit of GOOD[2]'s destination
@@ -95,12 +100,7 @@ def test_a_flipped_digit_is_detected(tmp_path):
 @pytest.mark.parametrize("other", [{"dimension": 2}, {"working_frame": "camera"},
                                    {"destination_frame": "map"}])
 def test_a_headerless_journal_of_another_setup_is_refused(tmp_path, other):
-    j = Journal(str(tmp_path), HEADER)
-    j.load()
-    for r in GOOD:
-        j.append(r)
-    j.close()
-    path = tmp_path / JOURNAL_NAME
+    path = write_good(tmp_path)
     path.write_bytes(b"\n".join(path.read_bytes().split(b"\n")[1:]))   # the header line lost
     with pytest.raises(JournalMismatch, match="no header line"):   # before: restored
         Journal(str(tmp_path), {**HEADER, **other}).load()
