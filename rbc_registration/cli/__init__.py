@@ -1,5 +1,6 @@
 """The ``rbc-registration`` command: one parser, one module per subcommand (:mod:`.register`,
-:mod:`.reproduce`, :mod:`.evaluate`, :mod:`.replay`, :mod:`.synth_bag`, :mod:`.export`).
+:mod:`.reproduce`, :mod:`.evaluate`, :mod:`.replay`, :mod:`.synth_bag`, :mod:`.export`,
+:mod:`.plan`).
 
 Building the parser imports only the standard library and the numpy-free constants
 (:mod:`rbc_registration.core.constants`, :mod:`rbc_registration.io.bag.records`); each
@@ -16,10 +17,10 @@ from typing import Optional, Sequence
 
 from ..io.escape import terminal
 from ..runtime import default_one_blas_thread
-from . import evaluate, export, register, replay, reproduce, synth_bag
+from . import evaluate, export, plan, register, replay, reproduce, synth_bag
 from .options import OneLineParser
 
-SUBCOMMANDS = (register, reproduce, evaluate, replay, synth_bag, export)
+SUBCOMMANDS = (register, reproduce, evaluate, replay, synth_bag, export, plan)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,5 +1,5 @@
-"""Figures of the paper's kind (Figs 2-5), a fiducial map and the decision's cross-validated
-errors, as PNG.
+"""Figures of the paper's kind (Figs 2-5), a fiducial map, the decision's cross-validated
+errors and a measurement plan, as PNG.
 
 Drawn on :class:`matplotlib.figure.Figure` objects directly (no pyplot, no global backend
 selected on import): a figure is rendered to PNG by ``savefig`` alone, so importing this module
@@ -131,6 +131,52 @@ def cv_errors(path: Path, errors: Mapping[str, ArrayLike], chosen: str, title: s
                     va="bottom", fontsize=7)
     ax.set_ylabel(f"held-out error [{unit}]")
     ax.set_title(f"{title} (chosen: {chosen})")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plan_figure(path: Path, fiducials: ArrayLike, candidates: ArrayLike, gains: ArrayLike,
+                sequence: Sequence[int], counts: ArrayLike, expected: ArrayLike, unit: str,
+                targets: Optional[ArrayLike] = None,
+                expected_with_all: Optional[float] = None) -> Path:
+    """A measurement plan: (a) the candidates in the working frame (x, y) coloured by their
+    expected gain, the fiducials, the targets and the suggested order; (b) the expected median
+    target error against the number of fiducials along the suggestions.
+
+    :param gains: (C,) expected gain of each candidate measured next.
+    :param sequence: the suggested candidate indices, in order (numbered on the map).
+    :param counts, expected: the error curve (fiducial counts and expected median TRE).
+    """
+    x, c = np.asarray(fiducials, dtype=float), np.asarray(candidates, dtype=float)
+    g = np.asarray(gains, dtype=float)
+    fig = Figure(figsize=(11, 4.8))
+    ax, curve = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.25, 1]})
+    dots = ax.scatter(c[:, 0], c[:, 1], c=g, cmap="viridis", s=22, marker="o",
+                      label="candidates")
+    fig.colorbar(dots, ax=ax, label=f"expected gain [{unit}]")
+    ax.plot(x[:, 0], x[:, 1], "kx", ms=6, label="fiducials")
+    if targets is not None and len(targets):
+        t = np.asarray(targets, dtype=float)
+        ax.plot(t[:, 0], t[:, 1], "r^", ms=5, mfc="none", label="targets")
+    seq = np.asarray(sequence, dtype=int)
+    ax.plot(c[seq, 0], c[seq, 1], "o", ms=10, mfc="none", mec="tab:red", label="suggested")
+    for rank, k in enumerate(seq, start=1):
+        ax.annotate(str(rank), c[k, :2], xytext=(5, 5), textcoords="offset points",
+                    fontsize=8, fontweight="bold", color="tab:red")
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"x [{unit}] (working frame)")
+    ax.set_ylabel(f"y [{unit}]")
+    ax.set_title("(a) candidates by expected gain; numbers: suggested order")
+    ax.legend(fontsize=7, loc="upper right")
+    curve.plot(np.asarray(counts), np.asarray(expected, dtype=float), "o-", ms=4,
+               label="expected, suggested order")
+    if expected_with_all is not None:
+        curve.axhline(expected_with_all, color="0.5", ls="--", lw=1,
+                      label="expected, every candidate measured")
+    curve.set_xlabel("fiducials")
+    curve.set_ylabel(f"expected median target error [{unit}]")
+    curve.set_title("(b) expected error against fiducial count")
+    curve.legend(fontsize=7)
     fig.tight_layout()
     return _save(fig, path)
 

@@ -1,8 +1,8 @@
 """The offline path needs no ROS: in a fresh interpreter where every ROS module (rclpy, the
 message packages, rosidl, tf2, ...) is blocked by a meta-path finder and no ROS prefix is set,
-``synth-bag``, ``evaluate`` (sqlite3 and mcap), ``register`` and a small ``reproduce`` all
-succeed, and not one ROS module was imported. ``replay``, which needs the message packages and
-rclpy, fails with one clear line instead of a traceback."""
+``synth-bag``, ``evaluate`` (sqlite3 and mcap), ``register``, ``plan`` (with its figure) and a
+small ``reproduce`` all succeed, and not one ROS module was imported. ``replay``, which needs the
+message packages and rclpy, fails with one clear line instead of a traceback."""
 
 import json
 import os
@@ -47,6 +47,8 @@ write_fiducials(f"{out}/fid.csv", cell.fiducial_ids, cell.fiducial_measurements,
 write_targets(f"{out}/tgt.csv", cell.target_ids, cell.target_means, cell.target_truth)
 runs.append(["register", f"{out}/fid.csv", "--targets", f"{out}/tgt.csv", "--loo",
              "--json", f"{out}/register.json"])
+runs.append(["plan", f"{out}/fid.csv", "--candidates", f"{out}/tgt.csv", "--count", "2",
+             "--json", f"{out}/plan.json", "--figure", f"{out}/plan.png"])
 runs.append(["reproduce", "--cells", "RA", "--repeats", "2", "--out", f"{out}/reproduce"])
 for argv in runs:
     code = main(argv)
@@ -67,7 +69,7 @@ def test_offline_commands_work_with_every_ros_module_blocked(tmp_path):
     proc = subprocess.run([sys.executable, "-c", SCRIPT, json.dumps(sorted(ros_module_names())),
                            str(tmp_path)], env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    for name in ("synth-bag", "evaluate", "register", "reproduce"):
+    for name in ("synth-bag", "evaluate", "register", "plan", "reproduce"):
         assert f"== {name} -> 0" in proc.stdout
     assert "== replay -> 2" in proc.stdout and "ROS modules loaded: []" in proc.stdout
     assert "rbc-registration replay: error: bag " in proc.stderr
@@ -81,3 +83,6 @@ def test_offline_commands_work_with_every_ros_module_blocked(tmp_path):
         (tmp_path / "ra_mcap.json").read_text())["corrected"]
     assert json.loads((tmp_path / "register.json").read_text())["loo"]["fiducials"]
     assert (tmp_path / "reproduce" / "reproduce.json").exists()
+    plan = json.loads((tmp_path / "plan.json").read_text())
+    assert len(plan["suggestions"]) == 2 and plan["dim"] == 3 and plan["n_candidates"] == 16
+    assert (tmp_path / "plan.png").read_bytes()[:4] == b"\x89PNG"

@@ -1,0 +1,94 @@
+"""``rbc-registration plan``: which fiducial to measure next, and when there are enough.
+
+Builds the model of FIDUCIALS.csv as ``register`` does (same model options), then ranks the
+candidate locations of CANDIDATES.csv by the expected reduction of the median target error
+(:func:`rbc_registration.core.model_planner.plan_from_model`; README, "Planning the
+measurements"), over the targets of TARGETS.csv or, without them, over the work volume.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from ..io.escape import terminal
+from .options import add_model_options, non_negative, refuse_outputs_onto_inputs, warn
+
+#: Suggestions made when ``--count`` is not given (fewer when there are fewer candidates).
+DEFAULT_COUNT = 5
+
+
+def add_parser(sub: Any) -> None:
+    """Add ``plan`` to the subparsers of ``rbc-registration``."""
+    p = sub.add_parser("plan", help="rank candidate fiducials by the expected gain at the "
+                                    "targets; say when there are enough")
+    p.add_argument("fiducials", type=Path, help="CSV: id,wx,wy,wz,dx,dy,dz (2D: no wz,dz): the "
+                                                "fiducials measured so far")
+    p.add_argument("--candidates", type=Path, required=True,
+                   help="CSV: id,wx,wy[,wz]: locations that could be measured next (working "
+                        "frame; approximate is enough)")
+    p.add_argument("--targets", type=Path, help="CSV: id,wx,wy[,wz]: the targets that matter "
+                                                "(default: the work volume)")
+    p.add_argument("--count", type=int, help=f"suggestions in order, each conditioned on the "
+                                             f"previous ones (default {DEFAULT_COUNT}, at most "
+                                             f"the candidates)")
+    p.add_argument("--min-gain-fraction", type=float, default=0.02, metavar="F",
+                   help="enough when the best candidate gains less than this fraction of the "
+                        "expected median target error (default 0.02)")
+    p.add_argument("--min-gain", type=float, default=0.0, metavar="LENGTH",
+                   help="... or less than this length, unit of the files (default 0: off)")
+    add_model_options(p, "default: 3 if the file has z", "the file's unit", defaults=True)
+    p.add_argument("--outlier-distance", type=non_negative, metavar="D",
+                   help="repeats of FIDUCIALS.csv checked as by register (default: 0.25 x the "
+                        "fiducial spacing; 0 = off)")
+    p.add_argument("--unit", default="mm", help="unit of the files, used as a label (default mm)")
+    p.add_argument("--json", type=Path, metavar="OUT.json", help="write the plan as JSON")
+    p.add_argument("--figure", type=Path, metavar="OUT.png",
+                   help="draw the candidates by expected gain and the expected error against "
+                        "the fiducial count")
+    p.set_defaults(func=run, uncorrected_fit=None, corrected_fit=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the plan; write JSON and the figure."""
+    from ..core.model import build_model
+    from ..core.model_planner import error_model_from, plan_from_model
+    from ..core.planner import PlanConfig
+    from ..io.csv_io import read_fiducials, read_targets
+    from ..io.plan_report import format_plan, plan_report
+    from ..io.report import write_json
+    from .register import model_config
+
+    refuse_outputs_onto_inputs([("--json", args.json), ("--figure", args.figure)],
+                               [("fiducials", args.fiducials), ("--candidates", args.candidates),
+                                ("--targets", args.targets)])
+    try:
+        config = PlanConfig(min_gain_fraction=args.min_gain_fraction,
+                            min_gain_length=args.min_gain)
+    except ValueError as exc:
+        raise ValueError(f"--min-gain-fraction / --min-gain: {exc}") from None
+    fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance)
+    for note in fid.notes:
+        warn("plan", note)
+    cand = read_targets(args.candidates, fid.dimension)
+    tgt = read_targets(args.targets, fid.dimension) if args.targets else None
+    count = min(DEFAULT_COUNT, len(cand.ids)) if args.count is None else args.count
+    model = build_model(fid.working, fid.destination, model_config(args, fid.dimension),
+                        ids=fid.ids, working_repeats=fid.working_repeats)
+    em = error_model_from(model)
+    plan = plan_from_model(model, cand.working, tgt.working if tgt else None, count=count,
+                           config=config, error_model=em)
+    report = plan_report(plan, cand.ids, em, config, args.unit)
+    print(format_plan(report))
+    if args.json:
+        write_json(report, args.json)
+        print(f"wrote {terminal(args.json)}")
+    if args.figure:
+        from ..io.figures import plan_figure
+        counts, curve = plan.error_curve
+        plan_figure(args.figure, model.working, cand.working, plan.gains, plan.sequence,
+                    counts, curve, args.unit, tgt.working if tgt else None,
+                    plan.expected_with_all)
+        print(f"wrote {terminal(args.figure)}")
+    return 0

@@ -1,0 +1,98 @@
+"""The report of a measurement plan (``rbc-registration plan``): a JSON-ready dict (keys
+documented in README.md, "`plan`: which fiducial to measure next") and its text.
+
+Lengths are in the unit of the files (the label ``unit``); the plan is
+:class:`~rbc_registration.core.planner.MeasurementPlan`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+from ..core.expected_error import ExpectedErrorModel
+from ..core.planner import MeasurementPlan, PlanConfig
+from ..pipeline.jsonable import json_number as _num
+from .escape import terminal
+
+
+def plan_report(plan: MeasurementPlan, candidate_ids: Sequence[str], error_model:
+                ExpectedErrorModel, config: PlanConfig, unit: str = "mm") -> dict[str, Any]:
+    """The report dict of ``plan`` (README, "`plan`").
+
+    :param candidate_ids: (C,) the candidates' ids, in the order the plan indexes them.
+    :param error_model: the error model the plan was made with (reported: s, l, noise, whether
+        the correction is applied).
+    :param config: the plan's configuration (the stopping rule's thresholds).
+    :raises ValueError: when ``candidate_ids`` does not match the plan's candidates.
+    """
+    if len(candidate_ids) != len(plan.gains):
+        raise ValueError(f"{len(candidate_ids)} candidate ids for a plan of "
+                         f"{len(plan.gains)} candidates")
+    rank = {int(c): r for r, c in enumerate(plan.ranking, start=1)}
+    counts, curve = plan.error_curve
+    befores = (plan.expected_now,) + plan.expected_after[:-1]
+    return {
+        "unit": unit,
+        "dim": error_model.dimension,
+        "n_fiducials": plan.fiducial_count,
+        "n_candidates": len(candidate_ids),
+        "error_at": "targets" if plan.on_targets else "work_volume",
+        "n_points": len(plan.points),
+        "corrected": bool(error_model.corrected),
+        "error_model": {"signal_std": _num(error_model.signal_std),
+                        "length_scale": _num(error_model.length_scale),
+                        "noise_axis_std": [_num(v ** 0.5) for v in
+                                           error_model.noise_covariance.diagonal()]},
+        "min_gain_fraction": config.min_gain_fraction,
+        "min_gain_length": config.min_gain_length,
+        "expected_now": _num(plan.expected_now),
+        "expected_with_all": _num(plan.expected_with_all),
+        "enough": bool(plan.enough),
+        "enough_after": plan.enough_after,
+        "reason": plan.reason,
+        "suggestions": [{"rank": r, "id": candidate_ids[c], "index": int(c),
+                         "expected_after": _num(after), "gain": _num(before - after)}
+                        for r, (c, before, after) in enumerate(
+                            zip(plan.sequence, befores, plan.expected_after), start=1)],
+        "candidates": [{"id": cid, "index": k, "gain": _num(plan.gains[k]), "rank": rank[k]}
+                       for k, cid in enumerate(candidate_ids)],
+        "error_curve": {"n_fiducials": [int(n) for n in counts],
+                        "expected": [_num(v) for v in curve]},
+    }
+
+
+def _len(v: Any, unit: str) -> str:
+    return "n/a" if v is None else f"{v:.4g} {unit}"
+
+
+def format_plan(report: dict[str, Any]) -> str:
+    """A readable text version of a :func:`plan_report` dict."""
+    u = terminal(report["unit"])
+    where = (f"{report['n_points']} targets" if report["error_at"] == "targets"
+             else f"the work volume ({report['n_points']} points)")
+    reg = "corrected" if report["corrected"] else "uncorrected"
+    lines = [
+        f"Plan from {report['n_fiducials']} fiducials, {report['dim']}D, "
+        f"{report['n_candidates']} candidates; median target error over {where}, {reg} "
+        f"registration; lengths in {u}",
+        f"  expected median target error now  {_len(report['expected_now'], u)}",
+        "  suggestions (#: the candidate's position in CANDIDATES.csv, from 0):",
+        f"  {'rank':>4}  {'candidate':<12} {'#':>5} {'expected after':>16} {'gain':>12} "
+        f"{'gain %':>7}",
+    ]
+    before = report["expected_now"]
+    for s in report["suggestions"]:
+        pct = 100 * s["gain"] / before if before else 0.0
+        lines.append(f"  {s['rank']:>4}  {terminal(s['id']):<12} {s['index']:>5} "
+                     f"{s['expected_after']:>13.4g} {u:<2} "
+                     f"{s['gain']:>9.4g} {u:<2} {pct:>6.2f}%")
+        before = s["expected_after"]
+    if report["expected_with_all"] is not None:
+        lines.append(f"  with all {report['n_candidates']} candidates measured: "
+                     f"{_len(report['expected_with_all'], u)}")
+    lines += ["", f"  verdict: {report['reason']}"]
+    after = report["enough_after"]
+    if not report["enough"] and after is not None:
+        lines.append(f"  after the first {after} suggestion(s) the next is expected to gain less "
+                     f"than the threshold")
+    return "\n".join(lines)
