@@ -150,6 +150,14 @@ SPECS: dict[str, Spec] = {
     "max_markers": Spec(1000, "Most correction arrows and disabled-fiducial labels in "
                         "~/markers (the sphere lists hold every fiducial); with more, the "
                         "arrows of the largest corrections are drawn.", low=0, high=1_000_000),
+    "max_candidates": Spec(500, "Most candidates, and most targets, in one ~/suggest_next "
+                           "request; a larger request is refused with success=false (bounds "
+                           "the time a plan holds the executor).", low=1, high=100_000),
+    "plan_min_gain_fraction": Spec(0.02, "~/suggest_next says enough when the best candidate is "
+                                   "expected to reduce the median target error by less than "
+                                   "this fraction of it (dimensionless).", low=0.0, high=0.99),
+    "plan_min_gain_length": Spec(0.0, "... or by less than this [m]; 0 = off.", low=0.0,
+                                 high=1.0),
 }
 
 
@@ -192,6 +200,9 @@ class Settings:
     marker_scale: float
     marker_arrow_gain: float
     max_markers: int
+    max_candidates: int
+    plan_min_gain_fraction: float
+    plan_min_gain_length: float
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> "Settings":

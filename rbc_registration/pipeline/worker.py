@@ -159,15 +159,17 @@ class RecomputeWorker:
 class LatestWriter:
     """A thread writing the latest submitted item with ``write(item)``: submissions while a
     write runs are coalesced into one write of the newest. Used for the calibration snapshot,
-    so its serialisation and fsyncs never run on the node's executor or recompute thread.
+    so its serialisation and fsyncs never run on the node's executor or recompute thread (and for
+    the planner's error model of the latest model).
 
     :param write: writes one item (e.g. serialises a model state and writes it atomically);
         returns what was written (e.g. the path).
     :param on_error: called with an exception ``write`` raised (the thread goes on).
+    :param name: the thread's name.
     """
 
     def __init__(self, write: Callable[[Any], str],
-                 on_error: Callable[[BaseException], None]) -> None:
+                 on_error: Callable[[BaseException], None], name: str = "rbc_snapshot") -> None:
         self._write = write
         self._on_error = on_error
         self._cond = threading.Condition()
@@ -178,7 +180,7 @@ class LatestWriter:
         self.n_written = 0
         self.last_written = ""   # what the last successful write returned
         self.last_error = ""     # the last failed write's error; "" after a success
-        self._thread = threading.Thread(target=self._run, name="rbc_snapshot", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
     def submit(self, item: Any) -> None:
@@ -194,6 +196,12 @@ class LatestWriter:
 
     def stop(self) -> None:
         """Write what is pending, then stop and join the thread."""
+        _stop_and_join(self)
+
+    def cancel(self) -> None:
+        """Drop what is pending, then stop and join the thread (after a write in progress)."""
+        with self._cond:
+            self._item, self._pending = None, False
         _stop_and_join(self)
 
     def _run(self) -> None:

@@ -27,7 +27,7 @@ from visualization_msgs.msg import MarkerArray
 
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus
 from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetFiducials,
-                                             SetFiducialEnabled, TakeSample)
+                                             SetFiducialEnabled, SuggestNext, TakeSample)
 
 from ..core.accumulator import FiducialAccumulator
 from ..core.pairing import DESTINATION, WORKING, StampPairer
@@ -43,6 +43,7 @@ from . import params, samples, saved
 from .guards import guard_input, guard_service
 from .markers import markers_msg
 from .param_callbacks import ParametersMixin
+from .planning import PlanningMixin
 from .services import ServicesMixin
 from .status import diagnostics_msg, health_of, status_msg
 from .tf_static import StaticTf
@@ -58,7 +59,7 @@ INPUT = {"reliable": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
                                    reliability=ReliabilityPolicy.BEST_EFFORT)}
 
 
-class RegistrationNode(ServicesMixin, ParametersMixin, Node):
+class RegistrationNode(ServicesMixin, ParametersMixin, PlanningMixin, Node):
     """The registration node (see the module docstring and msg_docs/README.md).
 
     :param build: builds the :class:`ModelState` from the fiducials, settings and a stamp
@@ -148,7 +149,8 @@ class RegistrationNode(ServicesMixin, ParametersMixin, Node):
                 (Trigger, "~/reset", self._on_reset),
                 (Trigger, "~/recompute", self._on_recompute),
                 (Trigger, "~/save", self._on_save),
-                (TakeSample, "~/take_sample", self._on_take_sample)):
+                (TakeSample, "~/take_sample", self._on_take_sample),
+                (SuggestNext, "~/suggest_next", self._on_suggest_next)):
             self.create_service(srv_type, name, guard_service(self.get_logger(), name, callback),
                                 callback_group=services)
         self.create_timer(s.status_period, self._publish_status,
@@ -165,6 +167,7 @@ class RegistrationNode(ServicesMixin, ParametersMixin, Node):
                 self._publish_tf()
             self.get_logger().info(self._loaded.describe())
         self._snapshots = LatestWriter(self._save, self._on_snapshot_error)
+        self._start_planner()   # the planner's error model of every new model, in its thread
         self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
                                        self._on_worker_error, clock)
         if restored:
@@ -237,6 +240,7 @@ class RegistrationNode(ServicesMixin, ParametersMixin, Node):
                 self._publish_tf()
             self._pub_markers.publish(markers)
         self._publish_status()
+        self._plan_model(state)   # ~/status expected_target_error follows from its thread
         if s.state_dir:
             self._snapshots.submit(state)   # serialised and written in its own thread
 
@@ -256,7 +260,7 @@ class RegistrationNode(ServicesMixin, ParametersMixin, Node):
     def status(self) -> RegistrationStatus:
         """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
         msg = status_msg(self._state, self._settings, self._ingest.counters(),
-                         self.get_clock().now().to_msg())
+                         self.get_clock().now().to_msg(), self._expected_target_error())
         loaded = self._loaded
         if loaded is not None and self._state.model is None:
             msg.message = "; ".join(filter(None, (loaded.describe(), msg.message)))
@@ -281,10 +285,10 @@ class RegistrationNode(ServicesMixin, ParametersMixin, Node):
         return path
 
     def destroy_node(self) -> None:
-        """Stop the recompute and snapshot threads, close the journal, release ``state_dir``,
-        then destroy the node (also of a node whose start failed half way)."""
-        for name, stop in (("_worker", "stop"), ("_snapshots", "stop"), ("_ingest", "close"),
-                           ("_state_lock", "release")):
+        """Stop the recompute, planning and snapshot threads, close the journal, release
+        ``state_dir``, then destroy the node (also of a node whose start failed half way)."""
+        for name, stop in (("_worker", "stop"), ("_planner", "cancel"), ("_snapshots", "stop"),
+                           ("_ingest", "close"), ("_state_lock", "release")):
             part = self.__dict__.pop(name, None)
             if part is not None:
                 getattr(part, stop)()

@@ -5,6 +5,7 @@ counters. Units: metres (REP 103); NaN where a value is unknown.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -31,8 +32,9 @@ def _nan(value: Any) -> float:
 
 
 def status_msg(state: ModelState, settings: Settings, counters: Counters,
-               now: Time) -> RegistrationStatus:
-    """The ``RegistrationStatus`` for ``state`` (built with possibly older settings)."""
+               now: Time, expected_target_error: float = float("nan")) -> RegistrationStatus:
+    """The ``RegistrationStatus`` for ``state`` (built with possibly older settings) and the
+    planner's expected target error of its model [m] (NaN: unknown)."""
     msg = RegistrationStatus()
     msg.header.stamp = now
     msg.header.frame_id = settings.destination_frame
@@ -63,6 +65,7 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
             f"journal write failed, {counters.n_journal_failures} record(s) not accepted: "
             f"{counters.journal_error}", msg.message)))
     msg.model_valid = model is not None
+    msg.expected_target_error = float(expected_target_error) if model is not None else math.nan
     if model is None:
         msg.sigma = msg.sigma_axis = msg.rho = float("nan")
         msg.fre_rms_uncorrected = msg.fre_rms_corrected = float("nan")

@@ -1,0 +1,113 @@
+"""The measurement planner for the served model (no rclpy): the error model and the expected
+target error of a :class:`~.state.ModelState`, computed once per model in the node's planning
+thread, and the validated request of ``~/suggest_next`` answered from them.
+
+Units: those of the model (metres in the node). The error model of a ``paper`` model needs the
+kriging hyper-parameters fitted (seconds at a few hundred fiducials), so it is computed beside the
+recompute thread, never on the executor, and a plan is refused (with the reason) until the error
+model of the current model is ready.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..core.expected_error import ExpectedErrorModel
+from ..core.model_planner import error_model_from, expected_target_error, plan_from_model
+from ..core.planner import MeasurementPlan, PlanConfig
+from .settings import Settings
+from .state import EMPTY_STATE, ModelState
+
+
+@dataclass(frozen=True)
+class PlanningState:
+    """What the planner knows of one model state.
+
+    :ivar state: the model state this belongs to (compared by identity with the served one).
+    :ivar error_model: the model's :class:`~rbc_registration.core.expected_error.
+        ExpectedErrorModel`; None without a model or when it could not be made.
+    :ivar expected_target_error: expected median TRE over the work volume of the fiducials (unit
+        of the model); NaN when unknown.
+    :ivar error: why there is no error model ("" when there is).
+    """
+
+    state: ModelState
+    error_model: Optional[ExpectedErrorModel]
+    expected_target_error: float
+    error: str
+
+
+#: Nothing planned yet (belongs to no served state but the empty one).
+NO_PLANNING = PlanningState(EMPTY_STATE, None, math.nan, "no model yet")
+
+
+def planning_state(state: ModelState) -> PlanningState:
+    """The error model and the expected target error of ``state``'s model (never raises
+    ValueError: a model the planner cannot use gives NaN and the reason)."""
+    model = state.model
+    if model is None:
+        return PlanningState(state, None, math.nan, f"no model yet: {state.error}")
+    try:
+        em = error_model_from(model)
+        value = expected_target_error(model, error_model=em)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return PlanningState(state, None, math.nan, f"no error model: {exc}")
+    return PlanningState(state, em, value, "")
+
+
+def expected_error_now(planning: PlanningState, state: ModelState) -> float:
+    """The expected target error to report for the served ``state``: NaN unless ``planning``
+    belongs to it."""
+    return planning.expected_target_error if planning.state is state else math.nan
+
+
+def plan_config(settings: Settings) -> PlanConfig:
+    """The stopping rule's thresholds from the node parameters."""
+    return PlanConfig(min_gain_fraction=settings.plan_min_gain_fraction,
+                      min_gain_length=settings.plan_min_gain_length)
+
+
+def request_error(settings: Settings, n_candidates: int, n_targets: int) -> str:
+    """Why a ``~/suggest_next`` request of this size is refused ("" when it is not): no
+    candidates, or more candidates or targets than ``max_candidates``."""
+    limit = settings.max_candidates
+    for name, n in (("candidates", n_candidates), ("targets", n_targets)):
+        if n > limit:
+            return (f"{n} {name} in one request, more than max_candidates ({limit}): split or "
+                    f"thin the request")
+    if n_candidates == 0:
+        return "no candidates: send the locations that could be measured next"
+    return ""
+
+
+def suggest(planning: PlanningState, state: ModelState, settings: Settings,
+            candidates: ArrayLike, targets: Optional[ArrayLike], count: int
+            ) -> MeasurementPlan:
+    """The plan of a ``~/suggest_next`` request, from the served ``state`` and its ``planning``.
+
+    :param candidates: (C, d) working-frame candidates, 1 <= C <= ``max_candidates``.
+    :param targets: (K, d) working-frame targets (K <= ``max_candidates``), or None: the work
+        volume.
+    :param count: suggestions (0: one).
+    :raises ValueError: naming what is wrong: no model, its error model not ready (yet), too
+        many or no candidates or targets, a bad point or count.
+    """
+    if state.model is None:
+        raise ValueError(f"no model yet: {state.error}")
+    if planning.state is not state:
+        raise ValueError(f"the error model of the current model ({len(state.model.ids)} "
+                         f"fiducials) is still being computed: retry in a moment")
+    if planning.error_model is None:
+        raise ValueError(planning.error)
+    if targets is not None and len(targets) == 0:
+        targets = None
+    error = request_error(settings, len(candidates), 0 if targets is None else len(targets))
+    if error:
+        raise ValueError(error)
+    return plan_from_model(state.model, candidates, targets, count=max(1, count),
+                           config=plan_config(settings), error_model=planning.error_model)
