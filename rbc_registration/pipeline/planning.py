@@ -46,12 +46,19 @@ class PlanningState:
 NO_PLANNING = PlanningState(EMPTY_STATE, None, math.nan, "no model yet")
 
 
-def planning_state(state: ModelState) -> PlanningState:
+def planning_state(state: ModelState, max_fiducials: Optional[int] = None) -> PlanningState:
     """The error model and the expected target error of ``state``'s model (never raises
-    ValueError: a model the planner cannot use gives NaN and the reason)."""
+    ValueError: a model the planner cannot use gives NaN and the reason).
+
+    :param max_fiducials: above this many fiducials nothing is computed (the node's
+        ``plan_max_fiducials``); None: no limit.
+    """
     model = state.model
     if model is None:
         return PlanningState(state, None, math.nan, f"no model yet: {state.error}")
+    if max_fiducials is not None and len(model.ids) > max_fiducials:
+        return PlanningState(state, None, math.nan, f"the planner is off: {len(model.ids)} "
+                             f"fiducials, more than plan_max_fiducials ({max_fiducials})")
     try:
         em = error_model_from(model)
         value = expected_target_error(model, error_model=em)

@@ -52,12 +52,13 @@ class PlanningMixin:
         return expected_error_now(self._planning, self._state)
 
     def _update_planning(self, state: ModelState) -> str:
-        planning = planning_state(state)
+        planning = planning_state(state, self._settings.plan_max_fiducials)
         if state is not self._state:   # a newer model (or a reset) came meanwhile
             return "stale"
+        new_reason = planning.error.split(":")[0] != self._planning.error.split(":")[0]
+        if planning.error and state.model is not None and new_reason:
+            self.get_logger().warning(f"planner: {planning.error}")   # once per kind of reason
         self._planning = planning
-        if planning.error and state.model is not None:
-            self.get_logger().warning(f"planner: {planning.error}")
         self._publish_status()
         return planning.error or f"expected target error {planning.expected_target_error:.3g} m"
 

@@ -45,6 +45,16 @@ def test_planning_state_of_a_model_is_the_core_planner():
     assert math.isnan(expected_error_now(p, other))     # belongs to another model state
 
 
+def test_above_plan_max_fiducials_the_planner_is_off():
+    state = grid_state(SETTINGS)                       # 18 fiducials
+    p = planning_state(state, max_fiducials=17)
+    assert math.isnan(p.expected_target_error) and p.error_model is None
+    assert p.error == "the planner is off: 18 fiducials, more than plan_max_fiducials (17)"
+    with pytest.raises(ValueError, match=re.escape(p.error)):
+        suggest(p, state, SETTINGS, [[0, 0, 0]], None, 1)
+    assert planning_state(state, max_fiducials=18).error_model is not None
+
+
 def test_without_a_model_nan_and_the_reason():
     p = planning_state(EMPTY_STATE)
     assert math.isnan(p.expected_target_error) and p.error_model is None
