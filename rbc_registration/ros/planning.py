@@ -28,14 +28,12 @@ def points_to_array(points: Sequence[Point], dimension: int) -> NDArray[np.float
 
 
 class PlanningMixin:
-    """The planner; the node provides ``_state``, ``_settings``, ``_publish_status`` and
-    ``get_logger``, and calls :meth:`_start_planner` in its start, :meth:`_plan_model` with
-    every new model state, :meth:`_expected_target_error` for its status, and stops
-    ``_planner`` when destroyed."""
+    """The planner; the node provides ``_state``, ``_settings`` and ``get_logger``, and calls
+    :meth:`_start_planner` in its start, :meth:`_plan_model` with every new model state,
+    :meth:`_expected_target_error` for its status, and stops ``_planner`` when destroyed."""
 
     _state: Any
     _settings: Any
-    _publish_status: Any
     get_logger: Any
 
     def _start_planner(self) -> None:
@@ -58,8 +56,7 @@ class PlanningMixin:
         new_reason = planning.error.split(":")[0] != self._planning.error.split(":")[0]
         if planning.error and state.model is not None and new_reason:
             self.get_logger().warning(f"planner: {planning.error}")   # once per kind of reason
-        self._planning = planning
-        self._publish_status()
+        self._planning = planning   # ~/status carries it from its next publication (timer)
         return planning.error or f"expected target error {planning.expected_target_error:.3g} m"
 
     def _on_planner_error(self, exc: BaseException) -> None:
