@@ -2,10 +2,11 @@
 target error of a :class:`~.state.ModelState`, computed once per model in the node's planning
 thread, and the validated request of ``~/suggest_next`` answered from them.
 
-Units: those of the model (metres in the node). The error model of a ``paper`` model needs the
-kriging hyper-parameters fitted (seconds at a few hundred fiducials), so it is computed beside the
-recompute thread, never on the executor, and a plan is refused (with the reason) until the error
-model of the current model is ready.
+Units: those of the model (metres in the node). The expected error is O(J^3), and a model without
+a kriging interpolator (e.g. decision off) needs the kriging hyper-parameters fitted first
+(seconds at a thousand fiducials), so it is computed beside the recompute thread, never on the
+executor, and a plan is refused (with the reason) until the error model of the current model is
+ready.
 """
 
 from __future__ import annotations

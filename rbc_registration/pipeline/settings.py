@@ -158,11 +158,11 @@ SPECS: dict[str, Spec] = {
                                    "this fraction of it (dimensionless).", low=0.0, high=0.99),
     "plan_min_gain_length": Spec(0.0, "... or by less than this [m]; 0 = off.", low=0.0,
                                  high=1.0),
-    "plan_max_fiducials": Spec(300, "Above this many fiducials the planner is off "
+    "plan_max_fiducials": Spec(1000, "Above this many fiducials the planner is off "
                                "(~/status expected_target_error NaN, ~/suggest_next refused): "
-                               "its error model fits the kriging hyper-parameters, O(J^3) per "
-                               "step, seconds at a few hundred fiducials in 3D.", low=3,
-                               high=100_000),
+                               "its expected error is O(J^3), and without a kriging model (e.g. "
+                               "decision off) it fits the kriging hyper-parameters first.",
+                               low=3, high=100_000),
 }
 
 
