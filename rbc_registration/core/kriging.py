@@ -29,6 +29,10 @@ from .validation import as_point_pairs, as_points
 __all__ = ["KrigingHyperparameters", "KrigingInterpolator", "MarginalLikelihood",
            "fit_hyperparameters"]
 
+#: Target-fiducial covariance entries :meth:`KrigingInterpolator.__call__` holds at once
+#: (16 MB of float64 per array).
+CHUNK_ELEMENTS = 2_000_000
+
 
 class KrigingInterpolator:
     """Gaussian-process interpolation of corrections (module docstring)."""
@@ -102,11 +106,20 @@ class KrigingInterpolator:
         return out
 
     def __call__(self, targets: ArrayLike) -> Interpolated:
-        """Posterior mean (eps(T), shape (K, d)) and standard deviation per axis at the targets."""
+        """Posterior mean (eps(T), shape (K, d)) and standard deviation per axis at the targets.
+
+        Targets are taken in chunks of at most :data:`CHUNK_ELEMENTS` target-fiducial pairs, so
+        a large batch needs O(J) memory per chunk, not O(K J) (10,000 targets at J = 5,000 were
+        two 400 MB arrays).
+        """
         t = as_points(targets, "targets", self.dim)
-        ks = self._cov(cdist(t, self.points))
-        mean = ks @ self.alpha
-        v = scipy.linalg.solve_triangular(self.chol[0], ks.T, lower=True, check_finite=False)
-        var = self.hyper.signal_std ** 2 - np.sum(v * v, axis=0)
+        mean = np.empty((len(t), self.dim))
+        var = np.empty(len(t))
+        step = max(1, CHUNK_ELEMENTS // len(self.points))
+        for s in range(0, len(t), step):
+            ks = self._cov(cdist(t[s:s + step], self.points))
+            mean[s:s + step] = ks @ self.alpha
+            v = scipy.linalg.solve_triangular(self.chol[0], ks.T, lower=True, check_finite=False)
+            var[s:s + step] = self.hyper.signal_std ** 2 - np.einsum("jk,jk->k", v, v)
         inside = self.hull.simplices(t) >= 0
         return Interpolated(mean, inside, np.sqrt(np.maximum(var, 0.0)))

@@ -114,3 +114,23 @@ def test_fit_validation():
         fit_hyperparameters(x, eps, sigma=math.inf)
     with pytest.raises(ValueError, match="same shape"):
         fit_hyperparameters(x, eps[:10])
+
+
+def test_batches_are_taken_in_chunks_with_the_same_answer(monkeypatch):
+    """A batch of targets is answered chunk by chunk (memory O(J) per chunk): the mean and the
+    expected error are those of one pass (to BLAS rounding), for chunks of 1, 7 and all
+    targets."""
+    from rbc_registration.core import kriging
+
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.0, 1.0, (60, 3))
+    k = KrigingInterpolator(x, 1e-4 * np.sin(3.0 * x) + rng.normal(0.0, 1e-5, x.shape),
+                            sigma=1e-5)
+    targets = rng.uniform(-0.1, 1.1, (50, 3))
+    whole = k(targets)
+    for chunk_targets in (1, 7):
+        monkeypatch.setattr(kriging, "CHUNK_ELEMENTS", chunk_targets * len(x))
+        part = k(targets)
+        np.testing.assert_allclose(part.correction, whole.correction, rtol=1e-12, atol=1e-20)
+        np.testing.assert_allclose(part.expected_error, whole.expected_error, rtol=1e-12)
+        np.testing.assert_array_equal(part.inside_hull, whole.inside_hull)
