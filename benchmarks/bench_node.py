@@ -1,16 +1,21 @@
 """Benchmark of registration_node from a separate process, each figure against a bare rclpy floor
 measured in the same run, in alternating blocks.
 
-Two child processes: ``registration_node`` (journal on, flushed per record, ``debounce_period``
-0.2 s, ``status_period`` 0.05 s) and the *floor* (this script with ``--floor NAME``): a bare node
-on the same executor type (``SingleThreadedExecutor``) with a ``std_srvs/Trigger`` server that
-only answers, and a subscriber of ``FiducialPair`` with the node's input QoS that only counts,
-publishing its count on ``~/status`` every 0.05 s like the node.
+Three child processes: ``registration_node`` (journal on, flushed per record,
+``debounce_period`` 0.2 s, ``status_period`` 0.05 s) and two *floors* (this script with
+``--floor KIND``): bare nodes on the same executor type (``SingleThreadedExecutor``), each with a
+subscriber of ``FiducialPair`` with the node's input QoS that only counts, publishing its count on
+``~/status`` every 0.05 s like the node, and one server that only answers: the issue's floor a
+``std_srvs/Trigger`` server, the *same-message floor* a ``CorrectTarget`` server returning one
+prepared response shaped like the node's (frames, method, a message of the same length). The
+second separates what rclpy and DDS cost for the larger ``CorrectTarget`` messages from the
+node's own work.
 
-Per run, alternating which process goes first:
+Per run, alternating the order of the processes:
 
-1. round trip: ``--calls`` sequential calls of ``~/correct_target`` (48-fiducial 3D model) and of
-   the floor's ``~/trigger`` -> p50 / p99 [ms]; ratio = node p50 / floor p50 (target <= 1.5);
+1. round trip: ``--calls`` sequential calls of ``~/correct_target`` (48-fiducial 3D model), of
+   the floor's ``~/trigger`` and of the same-message floor's ``~/correct_target`` -> p50 / p99
+   [ms]; ratio = node p50 / floor p50 (target <= 1.5), and node p50 / same-message floor p50;
 2. ingestion: ``--pairs`` FiducialPair messages (repeated visits of the 48 holes without ids,
    merged by proximity) with at most ``WINDOW`` in flight, until ``~/status`` reports them all
    -> pairs/s; ratio = node / floor (target >= 0.8).
@@ -65,9 +70,23 @@ TARGETS = {"round_trip_ratio_max": 1.5, "ingestion_ratio_min": 0.8}
 
 
 # -- the floor process ------------------------------------------------------------------------
-def run_floor(ros_args: list[str]) -> int:
-    """A bare node: Trigger server + counting subscriber (the node's input QoS), one executor;
-    ``ros_args`` (``--ros-args -r __node:=NAME``) name it."""
+def floor_answer() -> CorrectTarget.Response:
+    """A ``CorrectTarget`` answer shaped like the node's (what the same-message floor returns)."""
+    response = CorrectTarget.Response(success=True, method="paper", correction_applied=True,
+                                      inside_hull=True, expected_error=float("nan"),
+                                      expected_tre=1e-5, tre_bound=3e-5)
+    response.message = ("paper: corrections applied (decision cv); cross-validated median "
+                        "error 0.012 mm against 0.034 mm uncorrected")
+    for point in (response.destination, response.corrected, response.uncorrected):
+        point.header.frame_id = "world"
+        point.point.x, point.point.y, point.point.z = 0.1, 0.2, 0.3
+    return response
+
+
+def run_floor(kind: str, ros_args: list[str]) -> int:
+    """A bare node: one server (``kind`` "trigger": ``~/trigger``; "correct_target": a
+    ``~/correct_target`` answering :func:`floor_answer`) + counting subscriber (the node's input
+    QoS), one executor; ``ros_args`` (``--ros-args -r __node:=NAME``) name it."""
     from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
     from rclpy.executors import ExternalShutdownException
 
@@ -91,7 +110,18 @@ def run_floor(ros_args: list[str]) -> int:
 
     node.create_subscription(FiducialPair, "~/fiducial_pairs", on_pair, INPUT["reliable"],
                              callback_group=MutuallyExclusiveCallbackGroup())
-    node.create_service(Trigger, "~/trigger", on_trigger, callback_group=ReentrantCallbackGroup())
+    answer = floor_answer()
+
+    def on_correct_target(request: CorrectTarget.Request,
+                          response: CorrectTarget.Response) -> CorrectTarget.Response:
+        return answer
+
+    if kind == "trigger":
+        node.create_service(Trigger, "~/trigger", on_trigger,
+                            callback_group=ReentrantCallbackGroup())
+    else:
+        node.create_service(CorrectTarget, "~/correct_target", on_correct_target,
+                            callback_group=ReentrantCallbackGroup())
     node.create_timer(STATUS_PERIOD, publish_status,
                       callback_group=MutuallyExclusiveCallbackGroup())
     executor = SingleThreadedExecutor()
@@ -187,43 +217,51 @@ class Target:
         return len(msgs) / (time.perf_counter() - t0)
 
 
-def start_processes(state_dir: str, node_params: dict) -> tuple[list, str, str]:
+def start_processes(state_dir: str, node_params: dict) -> tuple[list, dict]:
+    """The node and the two floors; returns the processes and {label: node name}."""
     from rbc_registration.ros.process import start_node
 
-    name, floor = f"bench_registration_{os.getpid()}", f"bench_floor_{os.getpid()}"
+    pid = os.getpid()
+    names = {"node": f"bench_registration_{pid}", "floor": f"bench_floor_{pid}",
+             "same-message floor": f"bench_floor_ct_{pid}"}
     params = {"debounce_period": 0.2, "status_period": STATUS_PERIOD, "state_dir": state_dir,
               "outlier_distance": 0.0, **node_params}
-    procs = [start_node(name, params, ros_args=["--log-level", "warn"]),
-             start_node(floor, command=[sys.executable, os.path.abspath(__file__), "--floor"])]
-    return procs, name, floor
+    me = [sys.executable, os.path.abspath(__file__), "--floor"]
+    procs = [start_node(names["node"], params, ros_args=["--log-level", "warn"]),
+             start_node(names["floor"], command=[*me, "trigger"]),
+             start_node(names["same-message floor"], command=[*me, "correct_target"])]
+    return procs, names
 
 
 def summary(values: list[float]) -> str:
     return f"min {min(values):.3g}, median {statistics.median(values):.3g}"
 
 
-def bench_ratios(args, executor, node: Target, floor: Target) -> None:
+def bench_ratios(args, executor, node: Target, floor: Target, same: Target) -> None:
     cell = make_cell(seed=0, repeats=3)
     for k in range(len(cell["fid"])):
         node.pub.publish(pair_msg(cell, k, stamp_s=1.0 + k * 1e-3))
     spin_until(executor, lambda: node.count == len(cell["fid"]) and node.statuses[-1].model_valid
                and node.statuses[-1].n_pending == 0, 60, "the node's model")
     node.requests = [CorrectTarget.Request(target=target_msg(t)) for t in cell["targets"]]
+    same.requests = node.requests
     floor.requests = [Trigger.Request()]
     big = make_cell(seed=1, repeats=args.pairs // 48 + 1)
     msgs = [pair_msg(big, k, with_id=False, stamp_s=10.0 + k * 1e-4) for k in range(args.pairs)]
     rows = []
     for run in range(args.runs):
-        order = (node, floor) if run % 2 == 0 else (floor, node)
+        order = [(node, floor, same), (floor, same, node), (same, node, floor)][run % 3]
         lat = {t.label: t.round_trip(args.calls) for t in order}
-        rate = {t.label: t.ingest(msgs) for t in order}
+        rate = {t.label: t.ingest(msgs) for t in order if t is not same}
         p50 = {k: float(np.percentile(v, 50)) for k, v in lat.items()}
         p99 = {k: float(np.percentile(v, 99)) for k, v in lat.items()}
         row = (p50["node"], p99["node"], p50["floor"], p99["floor"], p50["node"] / p50["floor"],
-               rate["node"], rate["floor"], rate["node"] / rate["floor"])
+               rate["node"], rate["floor"], rate["node"] / rate["floor"],
+               p50[same.label], p50["node"] / p50[same.label])
         rows.append(row)
         print(f"run {run + 1} ({order[0].label} first): round trip p50 node {row[0]:.3f} ms "
-              f"(p99 {row[1]:.3f}) / floor {row[2]:.3f} ms (p99 {row[3]:.3f}) = {row[4]:.2f}x; "
+              f"(p99 {row[1]:.3f}) / floor {row[2]:.3f} ms (p99 {row[3]:.3f}) = {row[4]:.2f}x, "
+              f"/ same-message floor {row[8]:.3f} ms = {row[9]:.2f}x; "
               f"ingestion node {row[5]:.0f}/s / floor {row[6]:.0f}/s = {row[7]:.2f}x",
               flush=True)
     cols = list(zip(*rows))
@@ -234,6 +272,8 @@ def bench_ratios(args, executor, node: Target, floor: Target) -> None:
     print(f"| `~/correct_target` round trip p50 [ms] | {summary(cols[0])} | {summary(cols[2])} "
           f"| {summary(cols[4])} | <= {TARGETS['round_trip_ratio_max']} |")
     print(f"| round trip p99 [ms] | {summary(cols[1])} | {summary(cols[3])} | | |")
+    print(f"| round trip p50 against the same-message floor [ms] | {summary(cols[0])} "
+          f"| {summary(cols[8])} | {summary(cols[9])} | |")
     print(f"| ingestion [pairs/s] | {summary(cols[5])} | {summary(cols[6])} | {summary(cols[7])} "
           f"| >= {TARGETS['ingestion_ratio_min']} |")
 
@@ -298,10 +338,10 @@ def main() -> int:
                         help="instead: correct_target latency during a kriging rebuild at J")
     parser.add_argument("--rebuild-timeout", type=float, default=120.0,
                         help="most seconds to wait for that rebuild")
-    parser.add_argument("--floor", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--floor", choices=("trigger", "correct_target"), help=argparse.SUPPRESS)
     args, rest = parser.parse_known_args()
     if args.floor:
-        return run_floor(rest)
+        return run_floor(args.floor, rest)
 
     from rbc_registration.ros.process import stop_process
 
@@ -309,20 +349,23 @@ def main() -> int:
     node_params = {"journal_fsync": "true" if args.journal_fsync else "false"}
     if args.during_rebuild:
         node_params.update(merge_radius=0.001, sigma=1e-5, debounce_period=0.2)
-    procs, name, floor_name = start_processes(state_dir, node_params)
+    procs, names = start_processes(state_dir, node_params)
     rclpy.init()
     client = rclpy.create_node("bench_client")
     executor = SingleThreadedExecutor()
     executor.add_node(client)
     try:
-        node = Target(client, executor, "node", name, CorrectTarget, "correct_target")
-        floor = Target(client, executor, "floor", floor_name, Trigger, "trigger")
+        node = Target(client, executor, "node", names["node"], CorrectTarget, "correct_target")
+        floor = Target(client, executor, "floor", names["floor"], Trigger, "trigger")
+        same = Target(client, executor, "same-message floor", names["same-message floor"],
+                      CorrectTarget, "correct_target")
         node.wait_ready()
         if args.during_rebuild:
             bench_during_rebuild(args, client, executor, node)
         else:
             floor.wait_ready()
-            bench_ratios(args, executor, node, floor)
+            same.wait_ready()
+            bench_ratios(args, executor, node, floor, same)
         return 0
     finally:
         executor.shutdown()
