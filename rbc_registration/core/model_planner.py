@@ -42,7 +42,7 @@ class ExpectedErrorCheck(NamedTuple):
     ratio: float
 
 
-def _applies_correction(model: RbcModel) -> bool:
+def applies_correction(model: RbcModel) -> bool:
     """Whether the model's registration applies the correction eps(T) to targets: the
     cross-validated decision of issue 9 when the model has one (``decision.apply``), else
     always (the model serves the corrected registration)."""
@@ -50,13 +50,19 @@ def _applies_correction(model: RbcModel) -> bool:
     return True if decision is None else bool(decision.apply)
 
 
-def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None
-                     ) -> ExpectedErrorModel:
+def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None, *,
+                     served: bool = False) -> ExpectedErrorModel:
     """The error model of a built :class:`.model.RbcModel`.
 
     The bias hyper-parameters are the model's kriging ones (fitted now for the ``paper``
     interpolation); the noise is isotropic with sigma / sqrt(d) per axis (sigma: the model's,
     else the fitted one) unless ``axis_std`` (d,) gives the standard deviation per working axis.
+
+    :param served: False (planning): the corrected registration, whatever the decision serves
+        now. More fiducials are measured to learn the bias field; a decision that serves the
+        uncorrected registration today (too few fiducials to cross-validate a correction) would
+        otherwise see the bias as a floor no measurement lowers, and stop at once. True: the
+        registration the model serves (its decision), for reporting the error of today's answer.
     """
     hyper = model.kriging_hyperparameters
     if hyper is None:
@@ -65,13 +71,14 @@ def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None
     d = model.config.dimension
     std = np.full(d, hyper.noise_std / math.sqrt(d)) if axis_std is None else axis_std
     return ExpectedErrorModel.from_axis_std(hyper.signal_std, hyper.length_scale, std,
-                                    corrected=_applies_correction(model))
+                                            corrected=not served or applies_correction(model))
 
 
 def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[ArrayLike] = None,
                     *, count: int = 1, config: PlanConfig = DEFAULT_PLAN_CONFIG,
                     error_model: Optional[ExpectedErrorModel] = None) -> MeasurementPlan:
-    """:func:`plan` from the model's fiducials, repeats and error model (or ``error_model``)."""
+    """:func:`plan` from the model's fiducials, repeats and error model (or ``error_model``;
+    default the planning one, ``error_model_from(model)``: corrected registration)."""
     em = error_model_from(model) if error_model is None else error_model
     return plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
                 config=config)
@@ -81,9 +88,10 @@ def expected_target_error(model: RbcModel, targets: Optional[ArrayLike] = None, 
                           config: PlanConfig = DEFAULT_PLAN_CONFIG,
                           error_model: Optional[ExpectedErrorModel] = None) -> float:
     """Expected median TRE of the model now, over ``targets`` (K, d) (working frame) or, without
-    them, over the work volume of the fiducials (:func:`work_volume`): what a plan calls
-    ``expected_now``, without candidates (e.g. for a status report)."""
-    em = error_model_from(model) if error_model is None else error_model
+    them, over the work volume of the fiducials (:func:`work_volume`), without candidates (e.g.
+    for a status report). Default error model: the registration the model serves
+    (``error_model_from(model, served=True)``)."""
+    em = error_model_from(model, served=True) if error_model is None else error_model
     pts = work_volume(model.working, config.work_volume_points) if targets is None else targets
     return float(pooled_median(expected_squared_errors(model.working, pts, em, model.counts,
                                                        config.target_repeats), em.dimension))

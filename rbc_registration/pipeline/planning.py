@@ -12,14 +12,15 @@ ready.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..core.expected_error import ExpectedErrorModel
-from ..core.model_planner import error_model_from, expected_target_error, plan_from_model
+from ..core.model_planner import (applies_correction, error_model_from, expected_target_error,
+                                  plan_from_model)
 from ..core.planner import MeasurementPlan, PlanConfig
 from .settings import Settings
 from .state import EMPTY_STATE, ModelState
@@ -30,10 +31,11 @@ class PlanningState:
     """What the planner knows of one model state.
 
     :ivar state: the model state this belongs to (compared by identity with the served one).
-    :ivar error_model: the model's :class:`~rbc_registration.core.expected_error.
-        ExpectedErrorModel`; None without a model or when it could not be made.
-    :ivar expected_target_error: expected median TRE over the work volume of the fiducials (unit
-        of the model); NaN when unknown.
+    :ivar error_model: the model's planning :class:`~rbc_registration.core.expected_error.
+        ExpectedErrorModel` (the corrected registration, what more fiducials improve); None
+        without a model or when it could not be made.
+    :ivar expected_target_error: expected median TRE over the work volume of the fiducials of
+        the registration the model serves (its decision; unit of the model); NaN when unknown.
     :ivar error: why there is no error model ("" when there is).
     """
 
@@ -61,8 +63,9 @@ def planning_state(state: ModelState, max_fiducials: Optional[int] = None) -> Pl
         return PlanningState(state, None, math.nan, f"the planner is off: {len(model.ids)} "
                              f"fiducials, more than plan_max_fiducials ({max_fiducials})")
     try:
-        em = error_model_from(model)
-        value = expected_target_error(model, error_model=em)
+        em = error_model_from(model)   # planning: the corrected registration
+        served = replace(em, corrected=applies_correction(model))
+        value = expected_target_error(model, error_model=served)   # today's answer
     except (ValueError, np.linalg.LinAlgError) as exc:
         return PlanningState(state, None, math.nan, f"no error model: {exc}")
     return PlanningState(state, em, value, "")

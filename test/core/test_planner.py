@@ -316,14 +316,20 @@ class Decided:
         return getattr(self._model, name)
 
 
-def test_the_error_model_follows_the_models_decision(ra_model):
+def test_the_served_error_follows_the_decision_and_the_plan_assumes_the_correction(ra_model):
     m, rest, _ = ra_model
-    assert error_model_from(Decided(m, True)).corrected
-    off = error_model_from(Decided(m, False))
-    assert not off.corrected
-    # uncorrected: the bias stays, so the expected error is larger and the plan ranks by the fit
-    p_on, p_off = plan_from_model(m, rest), plan_from_model(Decided(m, False), rest)
-    assert p_off.expected_now > 2 * p_on.expected_now
+    assert error_model_from(Decided(m, True), served=True).corrected
+    assert not error_model_from(Decided(m, False), served=True).corrected
+    assert error_model_from(Decided(m, False)).corrected      # planning: always corrected
+    # uncorrected served: the bias stays, so today's expected error is larger ...
+    assert expected_target_error(Decided(m, False)) > 2 * expected_target_error(Decided(m, True))
+    # ... but the plan is that of the correction more fiducials make possible: the same ranking
+    # and gains, not a bias floor that no measurement lowers (which said "enough" at once)
+    p_on, p_off = plan_from_model(m, rest, count=3), plan_from_model(Decided(m, False), rest,
+                                                                     count=3)
+    assert p_off.sequence == p_on.sequence
+    np.testing.assert_array_equal(p_off.gains, p_on.gains)
+    assert p_off.gains.max() > 0
 
 
 def test_cross_validation_agrees_with_the_expected_error(ra_model):
