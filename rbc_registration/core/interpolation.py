@@ -66,13 +66,15 @@ class HullTest:
                              f"{str(exc).splitlines()[0]}") from None
 
     def local(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Coordinates of points in the frame the hull is triangulated in."""
-        return (points - self.centre) @ self.basis.T
+        """Coordinates of points in the frame the hull is triangulated in (a full-dimensional
+        hull's basis is the identity: no product, the same numbers)."""
+        rel = points - self.centre
+        return rel @ self.basis.T if self.flat else rel
 
     def simplices(self, targets: NDArray[np.float64]) -> NDArray[np.intp]:
         """Index of the simplex containing each target, -1 outside the hull."""
         rel = targets - self.centre
-        local = rel @ self.basis.T
+        local = rel @ self.basis.T if self.flat else rel
         if self.tri is None:
             lo, hi = self.interval
             found = np.where((local[:, 0] >= lo) & (local[:, 0] <= hi), 0, -1)
@@ -89,14 +91,17 @@ class PaperInterpolator:
 
     method = "paper"
 
-    def __init__(self, points: ArrayLike, corrections: ArrayLike) -> None:
-        """:param points: fiducials in the working frame (J, d). :param corrections: eps (J, d)."""
+    def __init__(self, points: ArrayLike, corrections: ArrayLike, *,
+                 hull: Optional[HullTest] = None) -> None:
+        """:param points: fiducials in the working frame (J, d). :param corrections: eps (J, d).
+        :param hull: a :class:`HullTest` of these same points to share (e.g. another
+            interpolator's ``hull``); default: built here."""
         self.points, self.corrections = as_point_pairs(points, corrections, min_count=1)
         self.dim = self.points.shape[1]
         if len(self.points) < self.dim + 1:
             raise ValueError(f"interpolation in {self.dim}D needs at least {self.dim + 1} "
                              f"fiducials, got {len(self.points)}")
-        self.hull = HullTest(self.points)
+        self.hull = hull if hull is not None else HullTest(self.points)
         if self.hull.flat:
             shape = "coplanar" if self.dim == 3 else "collinear"
             raise ValueError(f"fiducials are {shape}: the paper's interpolation needs fiducials "
@@ -113,18 +118,24 @@ class PaperInterpolator:
         """
         t = as_points(targets, "targets", self.dim)
         simplex = self.hull.simplices(t)
-        inside = simplex >= 0
-        if self.dim == 3:
-            idx, w = self._tetrahedra(t, simplex)
-        else:
-            idx, w = self._sectors(t)
-        return idx, w, inside
+        return (*self._weights(t, simplex), simplex >= 0)
+
+    def _weights(self, t: NDArray[np.float64], simplex: NDArray[np.intp]
+                 ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        """:meth:`weights` of validated targets, given their ``hull.simplices``."""
+        return self._tetrahedra(t, simplex) if self.dim == 3 else self._sectors(t)
 
     def __call__(self, targets: ArrayLike) -> Interpolated:
         """Interpolate corrections at targets (K, d) in the working frame."""
-        idx, w, inside = self.weights(targets)
+        t = as_points(targets, "targets", self.dim)
+        return self._at(t, self.hull.simplices(t))
+
+    def _at(self, t: NDArray[np.float64], simplex: NDArray[np.intp]) -> Interpolated:
+        """:meth:`__call__` of targets already validated (:func:`.validation.as_points`), given
+        their ``hull.simplices`` (one location per call shared by interpolators of one hull)."""
+        idx, w = self._weights(t, simplex)
         eps = np.einsum("km,kmd->kd", w, self.corrections[idx])
-        return Interpolated(eps, inside, np.full(len(eps), np.nan))
+        return Interpolated(eps, simplex >= 0, np.full(len(eps), np.nan))
 
     def _idw(self, t: NDArray[np.float64], k: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         dist, idx = self.tree.query(t, k=min(k, len(self.points)))
@@ -136,19 +147,25 @@ class PaperInterpolator:
 
     def _tetrahedra(self, t: NDArray[np.float64], simplex: NDArray[np.intp]
                     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        inside = simplex >= 0
+        if inside.all():                               # no masks: the common single target
+            return self._barycentric(t, simplex)
         idx = np.zeros((len(t), 4), dtype=np.intp)
         w = np.zeros((len(t), 4))
-        inside = simplex >= 0
         if inside.any():
-            s = simplex[inside]
-            trans = self.hull.tri.transform[s]         # barycentric coordinates (eq. 5 weights)
-            local = self.hull.local(t[inside])
-            bary = np.einsum("kij,kj->ki", trans[:, :3, :], local - trans[:, 3, :])
-            idx[inside] = self.hull.tri.simplices[s]
-            w[inside] = np.column_stack([bary, 1.0 - bary.sum(axis=1)])
-        if not inside.all():                           # fallback outside the hull
-            idx[~inside], w[~inside] = self._idw(t[~inside], 4)
+            idx[inside], w[inside] = self._barycentric(t[inside], simplex[inside])
+        idx[~inside], w[~inside] = self._idw(t[~inside], 4)   # fallback outside the hull
         return idx, w
+
+    def _barycentric(self, t: NDArray[np.float64], s: NDArray[np.intp]
+                     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        """Vertices and barycentric coordinates (eq. 5 weights) of targets in tetrahedra ``s``."""
+        trans = self.hull.tri.transform[s]
+        bary = np.einsum("kij,kj->ki", trans[:, :3, :], self.hull.local(t) - trans[:, 3, :])
+        w = np.empty((len(t), 4))
+        w[:, :3] = bary
+        w[:, 3] = 1.0 - bary.sum(axis=1)
+        return self.hull.tri.simplices[s].astype(np.intp), w
 
     def _sectors(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """The 8-sector rule (:mod:`.sectors`); batches use its grid, built on first use."""

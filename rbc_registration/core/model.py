@@ -15,16 +15,17 @@ target corrections::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping, NamedTuple, Optional, Sequence, Union
+from typing import Mapping, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .answers import TargetAnswer, TargetCorrections, TargetEvaluation
 from .config import ModelConfig
 from .constants import CANDIDATES, INTERPOLATIONS, UNCORRECTED, DecisionMode
 from .crossval import cross_validate
 from .decision import Decision, decide
-from .interpolation import Interpolated, PaperInterpolator
+from .interpolation import PaperInterpolator
 from .kriging import KrigingHyperparameters, KrigingInterpolator
 from .noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
 from .registration import Registration, rigid_fit
@@ -37,52 +38,6 @@ __all__ = ["INTERPOLATIONS", "Interpolator", "ModelConfig", "RbcModel", "TargetA
 Interpolator = Union[PaperInterpolator, KrigingInterpolator]
 #: The defaults (decision ``cv``, 3D, iterative restoration, paper interpolation).
 DEFAULT_CONFIG = ModelConfig()
-
-
-class TargetCorrections(NamedTuple):
-    """Answers for K targets (unit of the points).
-
-    :ivar uncorrected: R_u T + tau_u, destination frame (K, d).
-    :ivar corrected: R_c (T - eps(T)) + tau_c with the configured interpolation, destination
-        frame (K, d) (eq. 6).
-    :ivar correction: eps(T) of the configured interpolation, working frame (K, d) (eq. 5).
-    :ivar inside_hull: (K,) target inside the fiducials' convex hull.
-    :ivar expected_error: (K,) 1-sigma uncertainty of eps(T) per axis (kriging); NaN otherwise.
-    :ivar destination: the point to use per the decision (``RbcModel.decision.method``),
-        destination frame (K, d).
-    :ivar expected_tre: (K,) expected distance of ``destination`` from the true point (the
-        chosen method's cross-validated median error, scaled per target; ``ErrorModel``).
-    :ivar tre_bound: (K,) the distance ``destination`` stays within with 95 % probability.
-
-    The last three are None only in records built by hand with the first five fields.
-    """
-
-    uncorrected: NDArray[np.float64]
-    corrected: NDArray[np.float64]
-    correction: NDArray[np.float64]
-    inside_hull: NDArray[np.bool_]
-    expected_error: NDArray[np.float64]
-    # Defaults keep records built by hand with the first five fields valid; correct() fills all.
-    destination: Optional[NDArray[np.float64]] = None
-    expected_tre: Optional[NDArray[np.float64]] = None
-    tre_bound: Optional[NDArray[np.float64]] = None
-
-
-class TargetAnswer(NamedTuple):
-    """What a robot needs for K targets (unit of the points): :meth:`RbcModel.answer`.
-
-    :ivar destination: the point to use per the decision, destination frame (K, d).
-    :ivar expected_tre: (K,) its expected distance from the true point.
-    :ivar tre_bound: (K,) the distance it stays within with 95 % probability.
-    :ivar inside_hull: (K,) target inside the fiducials' convex hull.
-    :ivar method: the decision's method (one of ``CANDIDATES``).
-    """
-
-    destination: NDArray[np.float64]
-    expected_tre: NDArray[np.float64]
-    tre_bound: NDArray[np.float64]
-    inside_hull: NDArray[np.bool_]
-    method: str
 
 
 @dataclass(frozen=True)
@@ -142,31 +97,7 @@ class RbcModel:
         :return: :class:`TargetAnswer`.
         :raises ValueError: on a wrong shape or NaN/inf.
         """
-        return self._answer(as_points(targets, "targets", self.config.dimension), {})
-
-    def _answer(self, t: NDArray[np.float64], found: dict[str, Interpolated]) -> TargetAnswer:
-        """:meth:`answer`, reusing the interpolations already in ``found`` (and adding to it)."""
-        def interpolated(method: str) -> Interpolated:
-            if method not in found:
-                found[method] = self.interpolators[method](t)
-            return found[method]
-
-        method = self.decision.method
-        if method == UNCORRECTED:
-            destination = self.uncorrected.apply(t)
-            inside = (found[self.config.interpolation].inside_hull if found
-                      else self.interpolator.hull.simplices(t) >= 0)
-        else:
-            chosen = interpolated(method)
-            destination = self.corrected.apply(t - chosen.correction)
-            inside = chosen.inside_hull
-        errors = self.decision.error_model
-        scale = np.ones(len(t))
-        if errors.scaled:
-            kriging = self.interpolators["kriging"]
-            scale = np.hypot(interpolated("kriging").expected_error, kriging.noise_axis_std)
-        expected, bound = errors.at(scale)
-        return TargetAnswer(destination, expected, bound, inside, method)
+        return TargetEvaluation(self, as_points(targets, "targets", self.config.dimension)).answer()
 
     def correct(self, targets: ArrayLike) -> TargetCorrections:
         """Correct targets measured in the working frame (eq. 5-6) and give the point to use.
@@ -178,12 +109,7 @@ class RbcModel:
         :raises ValueError: on a wrong shape or NaN/inf.
         """
         t = as_points(targets, "targets", self.config.dimension)
-        interp = self.interpolator(t)
-        ans = self._answer(t, {self.config.interpolation: interp})
-        return TargetCorrections(self.uncorrected.apply(t),
-                                 self.corrected.apply(t - interp.correction), interp.correction,
-                                 interp.inside_hull, interp.expected_error, ans.destination,
-                                 ans.expected_tre, ans.tre_bound)
+        return TargetEvaluation(self, t).corrections()
 
 
 def _fit_subset(working: NDArray[np.float64], destination: NDArray[np.float64],
@@ -249,16 +175,18 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     candidates = _candidates(config.decision, config.interpolation)
     interpolators: dict[str, Interpolator] = {}
     failed: dict[str, str] = {}
+    hull = None                         # one hull test of the fiducials, shared (answers.py)
     for method in INTERPOLATIONS:
         if method != config.interpolation and method not in candidates:
             continue
         try:
             if method == "paper":
-                interpolators[method] = PaperInterpolator(x, restoration.corrections)
+                interpolators[method] = PaperInterpolator(x, restoration.corrections, hull=hull)
             else:
                 interpolators[method] = KrigingInterpolator(
                     x, restoration.corrections, sigma, stats.counts, kriging_hyperparameters,
-                    kriging_warm_start)
+                    kriging_warm_start, hull=hull)
+            hull = interpolators[method].hull
         except ValueError as exc:
             if method == config.interpolation:
                 raise

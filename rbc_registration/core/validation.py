@@ -33,11 +33,13 @@ def as_points(points: ArrayLike, name: str = "points", dim: Optional[int] = None
         raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
     if arr.shape[0] < min_count:
         raise ValueError(f"{name} needs at least {min_count} points, got {arr.shape[0]}")
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        row = int(np.argwhere(bad)[0][0])
-        raise ValueError(f"{name} contains NaN or inf (first at row {row}: {arr[row].tolist()})")
-    if arr.size and np.abs(arr).max() > MAX_ABS_COORDINATE:
+    # One pass when all is well: the largest |coordinate| compares False when it is NaN.
+    if arr.size and not np.abs(arr).max() <= MAX_ABS_COORDINATE:
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            row = int(np.argwhere(bad)[0][0])
+            raise ValueError(f"{name} contains NaN or inf (first at row {row}: "
+                             f"{arr[row].tolist()})")
         row = int(np.argmax(np.abs(arr).max(axis=1)))
         raise ValueError(f"{name} has a coordinate beyond ±{MAX_ABS_COORDINATE:g} at row {row}")
     return arr
