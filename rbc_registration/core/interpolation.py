@@ -109,6 +109,8 @@ class PaperInterpolator:
                              f"{'dimension 2 or ' if self.dim == 3 else ''}kriging")
         self.tree = cKDTree(self.points)
         self._sector_index: Optional[SectorIndex] = None
+        # 3D: the tetrahedra's vertices as index arrays, converted once.
+        self._vertices = self.hull.tri.simplices.astype(np.intp) if self.dim == 3 else None
 
     def weights(self, targets: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.float64],
                                                     NDArray[np.bool_]]:
@@ -165,7 +167,7 @@ class PaperInterpolator:
         w = np.empty((len(t), 4))
         w[:, :3] = bary
         w[:, 3] = 1.0 - bary.sum(axis=1)
-        return self.hull.tri.simplices[s].astype(np.intp), w
+        return self._vertices[s], w
 
     def _sectors(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """The 8-sector rule (:mod:`.sectors`); batches use its grid, built on first use."""
