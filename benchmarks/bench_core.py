@@ -14,7 +14,7 @@
   (wall clock and thread CPU time); the first two calls after a build are shown apart (2D: the
   second prepares the grid cells that targets fell in twice).
 - large J (``--large``): iterative for J up to 10,000 and closed-form up to 100,000.
-- one target correction in process (paper and kriging).
+- one target correction in process (paper and kriging); ``--one-target``: only this table.
 
 Prints Markdown. Times are wall clock (1 BLAS thread unless ``--threads``), on whatever machine
 runs it; the machine should otherwise be idle, and ratios against a floor measured in the same
@@ -32,6 +32,7 @@ if "--threads" not in sys.argv:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+import rbc_registration  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from rbc_registration.core.interpolation import PaperInterpolator  # noqa: E402
@@ -239,9 +240,16 @@ def main() -> None:
     p.add_argument("--repeat", type=int, default=30)
     p.add_argument("--large", action="store_true", help="also J up to 10,000 / 100,000")
     p.add_argument("--threads", action="store_true", help="keep the BLAS thread default")
+    p.add_argument("--one-target", action="store_true",
+                   help="only the one-target table (e.g. to compare trees: PYTHONPATH=<tree>)")
     args = p.parse_args()
     print(f"BLAS threads: {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}, "
           f"cores: {os.cpu_count()}\n")
+    if args.one_target:
+        tree = os.path.dirname(os.path.dirname(rbc_registration.__file__))
+        print(f"### One target correction, in process ({tree})\n")
+        print("\n".join(correction_table(args.repeat * 10)))
+        return
     print("### Restoration (2 steps, sigma_L excluded)\n")
     print("\n".join(restoration_table(args.repeat)))
     print("\n### Model rebuild (build_model defaults: 3D, iterative, paper)\n")

@@ -13,7 +13,7 @@
 Times are wall clock with 1 BLAS thread: min and median of the repeats, the compared variants
 alternated. Prints Markdown.
 
-Run: ``.venv/bin/python benchmarks/bench_decision.py [--quick]``
+Run: ``.venv/bin/python benchmarks/bench_decision.py [--quick | --one-target]``
 """
 
 from __future__ import annotations
@@ -89,7 +89,8 @@ def kriging_rows(sizes, repeat: int, budget: float) -> list[str]:
     return rows
 
 
-def decision_rows(repeat: int, budget: float) -> list[str]:
+def decision_rows(repeat: int, budget: float, build: bool = True) -> list[str]:
+    """The decision table; ``build=False``: the one-target columns only (one build per cell)."""
     rows = ["| cell | J | d | folds | whole build with the decision (cv) | decided | "
             "one target: model.answer | model.correct |", "|---|---|---|---|---|---|---|---|"]
     a = make_cell("A", 0)
@@ -97,22 +98,28 @@ def decision_rows(repeat: int, budget: float) -> list[str]:
              ("RA-like", *ra_cell(0), 2), ("volume", *volume_cell(1000), 3)]
     for name, x, y, d in cells:
         cfg = ModelConfig(dimension=d)
-        res = timings(lambda: build_model(x, y, cfg), repeat, budget)
+        res = timings(lambda: build_model(x, y, cfg), repeat, budget) if build else None
         model = build_model(x, y, cfg)
         one = x[:1] + 1.0
         model.correct(one)
         t_answer = min(timings(lambda: model.answer(one), 2000, 5.0))
         t_correct = min(timings(lambda: model.correct(one), 2000, 5.0))
         rows.append(f"| {name} | {len(x)} | {d} | {model.decision.folds.describe()} | "
-                    f"{fmt(res)} | {model.decision.method} | {t_answer * 1e6:.0f} µs | "
-                    f"{t_correct * 1e6:.0f} µs |")
+                    f"{fmt(res) if build else '-'} | {model.decision.method} | "
+                    f"{t_answer * 1e6:.0f} µs | {t_correct * 1e6:.0f} µs |")
     return rows
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats, no J = 5000")
+    parser.add_argument("--one-target", action="store_true",
+                        help="only model.answer / model.correct of one target, no build timings "
+                             "(e.g. to compare trees: PYTHONPATH=<tree>)")
     args = parser.parse_args(argv)
+    if args.one_target:
+        print("\n".join(decision_rows(1, 60.0, build=False)))
+        return 0
     repeat = 3 if args.quick else 7
     sizes = [(277, 2), (1000, 3)] + ([] if args.quick else [(5000, 3)])
     print(f"BLAS threads: {os.environ.get('OPENBLAS_NUM_THREADS')}, cores: {os.cpu_count()}; "
