@@ -134,3 +134,27 @@ def test_batches_are_taken_in_chunks_with_the_same_answer(monkeypatch):
         np.testing.assert_allclose(part.correction, whole.correction, rtol=1e-12, atol=1e-20)
         np.testing.assert_allclose(part.expected_error, whole.expected_error, rtol=1e-12)
         np.testing.assert_array_equal(part.inside_hull, whole.inside_hull)
+
+
+def test_matern52_in_blocks_is_the_closed_form(monkeypatch):
+    """matern52 works block by block in place: the closed form (1 + a + a^2/3) exp(-a),
+    a = sqrt(5) r / l, across block boundaries, for an empty, a strided and a C array."""
+    rng = np.random.default_rng(4)
+    monkeypatch.setattr(gp_fit, "_BLOCK_ELEMENTS", 7)
+    for r in (rng.uniform(0.0, 3.0, (13, 11)), rng.uniform(0.0, 3.0, (20, 9))[::2, 1:],
+              np.zeros((0, 4))):
+        a = math.sqrt(5.0) * r / 0.8
+        expected = (1.0 + a + a * a / 3.0) * np.exp(-a)
+        got = gp_fit.matern52(r.copy(), 0.8)
+        assert got.shape == r.shape
+        np.testing.assert_allclose(got, expected, rtol=1e-14, atol=0.0)
+
+
+def test_inverse_from_cholesky_is_the_symmetric_inverse():
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0.0, 1.0, (300, 3))   # more than one 256-row block
+    k = gp_fit.matern52(np.linalg.norm(x[:, None] - x[None], axis=-1), 0.3)
+    k.flat[::301] += 1e-3
+    inv = gp_fit.inverse_from_cholesky(np.linalg.cholesky(k))
+    np.testing.assert_array_equal(inv, inv.T)
+    np.testing.assert_allclose(inv @ k, np.eye(300), atol=1e-8)
