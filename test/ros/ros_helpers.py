@@ -105,8 +105,25 @@ class RosHarness:
         self.client = rclpy.create_node("test_client", context=self.context)
         self.executor.add_node(self.client)
         self._clients: dict[str, Any] = {}
-        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self._stopping = False
+        self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
+
+    def _spin(self) -> None:
+        """``executor.spin()`` that survives the tests destroying their subscriptions and
+        publishers from the test thread: rclpy then raises ``InvalidHandle`` in the spin thread
+        when it was collecting that entity for its wait set, which ended ``spin()`` and left
+        every later service call of the class unanswered (seen as a 30 s timeout)."""
+        from rclpy._rclpy_pybind11 import InvalidHandle
+        from rclpy.executors import ExternalShutdownException, ShutdownException
+
+        while not self._stopping and self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.1)
+            except InvalidHandle:
+                continue   # the wait set is collected again without the destroyed entity
+            except (ShutdownException, ExternalShutdownException):
+                return
 
     def add(self, node: Any) -> Any:
         """Spin ``node`` too; returns it."""
@@ -134,6 +151,7 @@ class RosHarness:
         """Shut the executor down, join its thread, destroy the client, shut the context down."""
         import rclpy
 
+        self._stopping = True
         self.executor.shutdown()
         self._thread.join(timeout=10.0)
         self.client.destroy_node()
