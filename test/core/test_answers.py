@@ -132,17 +132,24 @@ def test_corrections_fields_are_separate_arrays(interpolation, mode):
 
 @pytest.mark.parametrize("order", ["F", "C"])
 def test_kriging_lower_solve_is_solve_triangular(order):
-    """The direct LAPACK solve gives solve_triangular's numbers exactly (a C-ordered factor takes
-    solve_triangular itself)."""
+    """The direct LAPACK solve gives solve_triangular's numbers exactly, for the factor held as L
+    or as L^T (a C-ordered factor takes solve_triangular itself); either is L^-1 b."""
     rng = np.random.default_rng(4)
     x = rng.uniform(0.0, 1.0, (30, 3))
     k = KrigingInterpolator(x, 1e-3 * np.sin(3.0 * x), sigma=1e-4)
     if order == "C":
         k.chol = (np.ascontiguousarray(k.chol[0]), k.chol[1])
-    for cols in (1, 5):
-        b = rng.normal(size=(cols, 30))
-        want = scipy.linalg.solve_triangular(k.chol[0], b.T, lower=True, check_finite=False)
-        np.testing.assert_array_equal(k._lower_solve(b.copy().T), want)
+    factor, lower = k.chol
+    low = factor if lower else factor.T
+    for chol in (k.chol, (np.asfortranarray(low), True), (np.ascontiguousarray(low.T), False)):
+        k.chol = chol                                  # each layout and triangle
+        for cols in (1, 5):
+            b = rng.normal(size=(cols, 30))
+            want = scipy.linalg.solve_triangular(chol[0], b.T, lower=chol[1],
+                                                 trans=0 if chol[1] else 1, check_finite=False)
+            np.testing.assert_array_equal(k._lower_solve(b.copy().T), want)
+            np.testing.assert_allclose(want, scipy.linalg.solve_triangular(
+                low, b.T, lower=True, check_finite=False), rtol=1e-12, atol=0.0)
 
 
 def test_tetrahedra_without_masks_equal_the_masked_path():
