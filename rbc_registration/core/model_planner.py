@@ -12,6 +12,7 @@ hyper-parameters of its kriging, its noise sigma, and whether it applies the cor
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple, Optional
 
@@ -42,7 +43,7 @@ class ExpectedErrorCheck(NamedTuple):
     ratio: float
 
 
-def applies_correction(model: RbcModel) -> bool:
+def _applies_correction(model: RbcModel) -> bool:
     """Whether the model's registration applies the correction eps(T) to targets: the
     cross-validated decision of issue 9 when the model has one (``decision.apply``), else
     always (the model serves the corrected registration)."""
@@ -70,8 +71,14 @@ def error_model_from(model: RbcModel, axis_std: Optional[ArrayLike] = None, *,
                                     model.counts).hyper
     d = model.config.dimension
     std = np.full(d, hyper.noise_std / math.sqrt(d)) if axis_std is None else axis_std
-    return ExpectedErrorModel.from_axis_std(hyper.signal_std, hyper.length_scale, std,
-                                            corrected=not served or applies_correction(model))
+    em = ExpectedErrorModel.from_axis_std(hyper.signal_std, hyper.length_scale, std)
+    return served_error_model(model, em) if served else em
+
+
+def served_error_model(model: RbcModel, error_model: ExpectedErrorModel) -> ExpectedErrorModel:
+    """``error_model`` for the registration ``model`` serves now: corrected as its decision
+    says (the planning one, :func:`error_model_from`, always assumes the correction)."""
+    return dataclasses.replace(error_model, corrected=_applies_correction(model))
 
 
 def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[ArrayLike] = None,

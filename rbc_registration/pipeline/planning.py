@@ -12,15 +12,15 @@ ready.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..core.expected_error import ExpectedErrorModel
-from ..core.model_planner import (applies_correction, error_model_from, expected_target_error,
-                                  plan_from_model)
+from ..core.model_planner import (error_model_from, expected_target_error, plan_from_model,
+                                  served_error_model)
 from ..core.planner import MeasurementPlan, PlanConfig
 from .settings import Settings
 from .state import EMPTY_STATE, ModelState
@@ -64,8 +64,7 @@ def planning_state(state: ModelState, max_fiducials: Optional[int] = None) -> Pl
                              f"fiducials, more than plan_max_fiducials ({max_fiducials})")
     try:
         em = error_model_from(model)   # planning: the corrected registration
-        served = replace(em, corrected=applies_correction(model))
-        value = expected_target_error(model, error_model=served)   # today's answer
+        value = expected_target_error(model, error_model=served_error_model(model, em))
     except (ValueError, np.linalg.LinAlgError) as exc:
         return PlanningState(state, None, math.nan, f"no error model: {exc}")
     return PlanningState(state, em, value, "")
