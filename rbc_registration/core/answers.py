@@ -121,12 +121,8 @@ class TargetEvaluation:
         m = self.model
         method = m.decision.method
         destination = self.registered(method)
-        if method == UNCORRECTED:
-            configured = self._interpolated.get(m.config.interpolation)
-            inside = (configured.inside_hull if configured is not None
-                      else self.simplices(m.interpolator.hull) >= 0)
-        else:
-            inside = self.interpolated(method).inside_hull
+        # the interpolators share one hull, located once per call
+        inside = self.simplices(m.interpolator.hull) >= 0
         errors = m.decision.error_model
         scale = np.ones(len(self.targets))
         if errors.scaled:
