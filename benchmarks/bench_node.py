@@ -217,8 +217,9 @@ class Target:
         return len(msgs) / (time.perf_counter() - t0)
 
 
-def start_processes(state_dir: str, node_params: dict) -> tuple[list, dict]:
-    """The node and the two floors; returns the processes and {label: node name}."""
+def start_processes(state_dir: str, node_params: dict, floors: bool = True
+                    ) -> tuple[list, dict]:
+    """The node and (``floors``) the two floors; returns the processes and {label: node name}."""
     from rbc_registration.ros.process import start_node
 
     pid = os.getpid()
@@ -227,9 +228,10 @@ def start_processes(state_dir: str, node_params: dict) -> tuple[list, dict]:
     params = {"debounce_period": 0.2, "status_period": STATUS_PERIOD, "state_dir": state_dir,
               "outlier_distance": 0.0, **node_params}
     me = [sys.executable, os.path.abspath(__file__), "--floor"]
-    procs = [start_node(names["node"], params, ros_args=["--log-level", "warn"]),
-             start_node(names["floor"], command=[*me, "trigger"]),
-             start_node(names["same-message floor"], command=[*me, "correct_target"])]
+    procs = [start_node(names["node"], params, ros_args=["--log-level", "warn"])]
+    if floors:
+        procs += [start_node(names["floor"], command=[*me, "trigger"]),
+                  start_node(names["same-message floor"], command=[*me, "correct_target"])]
     return procs, names
 
 
@@ -349,7 +351,7 @@ def main() -> int:
     node_params = {"journal_fsync": "true" if args.journal_fsync else "false"}
     if args.during_rebuild:
         node_params.update(merge_radius=0.001, sigma=1e-5, debounce_period=0.2)
-    procs, names = start_processes(state_dir, node_params)
+    procs, names = start_processes(state_dir, node_params, floors=not args.during_rebuild)
     rclpy.init()
     client = rclpy.create_node("bench_client")
     executor = SingleThreadedExecutor()
