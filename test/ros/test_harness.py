@@ -12,12 +12,13 @@ from ros_helpers import RosHarness
 
 @pytest.mark.ros
 def test_spin_thread_survives_entities_destroyed_while_spinning():
+    import rclpy
     from std_msgs.msg import String
     from std_srvs.srv import Trigger
 
     ros = RosHarness()
     try:
-        server = ros.add(ros.client.__class__("harness_server", context=ros.context))
+        server = ros.add(rclpy.create_node("harness_server", context=ros.context))
         server.create_service(Trigger, "~/ping",
                               lambda request, response: setattr(response, "success", True)
                               or response)
