@@ -9,9 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from rbc_registration.core import leave_one_out
 from rbc_registration.core.constants import DecisionMode
-from rbc_registration.core.crossval import cross_validate
-from rbc_registration.core.decision import (SIGNIFICANCE, conformal_quantile, decide,
-                                            paired_test)
+from rbc_registration.core.crossval import CrossValidation, FoldScheme, cross_validate
+from rbc_registration.core.decision import (PREFERENCE, SIGNIFICANCE, conformal_quantile,
+                                            decide, paired_test)
 from rbc_registration.core.model import ModelConfig, build_model
 from rbc_registration.core.noise import Assessment
 
@@ -198,3 +198,35 @@ def test_answer_is_the_fast_path_of_correct():
         np.testing.assert_array_equal(ans.inside_hull, tc.inside_hull)
     with pytest.raises(ValueError, match=r"targets must have shape \(N, 2\)"):
         m.answer(np.zeros((2, 3)))
+
+
+def _scored(errors):
+    """A cross-validation record with the given held-out errors (leave-one-out)."""
+    n = len(errors["uncorrected"])
+    return CrossValidation(FoldScheme("leave-one-out", n), errors, None, {})
+
+
+def test_a_lower_median_alone_does_not_switch_from_the_preferred_correction():
+    """Both corrections beat the uncorrected registration; paper's median is lower, but its
+    errors are not significantly smaller than kriging's: kriging (PREFERENCE[0]) is kept and the
+    reason says why. When paper's errors are significantly smaller, paper is chosen."""
+    rng = np.random.default_rng(3)
+    unc = rng.uniform(2.0, 3.0, 40)
+    kriging = rng.uniform(0.5, 1.5, 40)
+    middle = np.argsort(kriging)[9:31]                    # 3 % lower around the median,
+    close = kriging * 1.05                               # 5 % higher elsewhere: no clear gain
+    close[middle] = kriging[middle] * 0.97
+    assert np.median(close) < np.median(kriging)
+    assert paired_test(kriging, close)[1] >= SIGNIFICANCE
+    none = Assessment(None, "unknown")
+    d = decide("cv", _scored({"uncorrected": unc, "paper": close, "kriging": kriging}), "paper",
+               none)
+    assert d.method == PREFERENCE[0] == "kriging" and d.apply
+    assert "paper's lower median" in d.reason and "not significantly smaller" in d.reason
+    better = 0.6 * kriging                               # paper clearly better: shown, chosen
+    d = decide("cv", _scored({"uncorrected": unc, "paper": better, "kriging": kriging}), "kriging",
+               none)
+    assert d.method == "paper" and "lower median" not in d.reason
+    only = decide("cv", _scored({"uncorrected": unc, "paper": close, "kriging": unc * 0.999}),
+                  "kriging", none)
+    assert only.method == "paper"                        # kriging does not beat uncorrected
