@@ -1,6 +1,8 @@
 """The measurement planner on the synthetic RA-like (2D) and A-like (3D) cells (issue 13).
 
-Run: ``.venv/bin/python benchmarks/plan_cells.py [--seeds 5] [--json out.json]``.
+Run: ``.venv/bin/python benchmarks/plan_cells.py [--seeds 5] [--cells RA,A] [--json out.json]``;
+the cells can run in parallel (one ``--cells`` and ``--json`` each) and be reported together with
+``--load ra.json,a.json``.
 
 Per cell and seed, single measurements (the first measurement of every fiducial and target; the
 truth known): start from 10 fiducials drawn at random from the fiducial set, then add fiducials
@@ -255,6 +257,19 @@ def figure(results: dict, start: int, stop: int, path: str) -> None:
     fig.savefig(path, dpi=120)
 
 
+def load(path: str) -> dict:
+    """Results written by ``--json`` ({cell: [run per seed]}), with the integer fiducial
+    counts JSON turned into strings restored."""
+    with open(path) as f:
+        results = json.load(f)
+    for runs in results.values():
+        for run in runs:
+            for order in run.values():
+                if isinstance(order, dict) and "cv" in order:
+                    order["cv"] = {int(k): v for k, v in order["cv"].items()}
+    return results
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", default="RA,A")
@@ -263,18 +278,26 @@ def main(argv=None) -> int:
     ap.add_argument("--stop", type=int, default=60)
     ap.add_argument("--figure", default=os.path.join(os.path.dirname(__file__), "plan_cells.png"))
     ap.add_argument("--json", default=None)
+    ap.add_argument("--load", default=None,
+                    help="comma-separated --json files of earlier runs (e.g. one per cell, run "
+                         "in parallel): report them together instead of running")
     args = ap.parse_args(argv)
     config = PlanConfig()
-    results = {}
+    results: dict = {}
     print(f"Model: {MODEL}. Stopping rule: min_gain_fraction {config.min_gain_fraction}, "
           f"min_gain_length {config.min_gain_length}.\n")
-    for name in args.cells.split(","):
-        results[name] = []
-        for seed in range(args.seeds):
-            r = run_cell(name, seed, args.start, args.stop, config)
-            print(f"{name} seed {seed}: {r['seconds']:.0f} s", file=sys.stderr)
-            results[name].append(r)
-        print("\n".join(report(name, results[name], args.start, args.stop)) + "\n")
+    if args.load:
+        for path in args.load.split(","):
+            results.update(load(path))
+    else:
+        for name in args.cells.split(","):
+            results[name] = []
+            for seed in range(args.seeds):
+                r = run_cell(name, seed, args.start, args.stop, config)
+                print(f"{name} seed {seed}: {r['seconds']:.0f} s", file=sys.stderr)
+                results[name].append(r)
+    for name, runs in results.items():
+        print("\n".join(report(name, runs, args.start, args.stop)) + "\n")
     figure(results, args.start, args.stop, args.figure)
     if args.json:
         with open(args.json, "w") as f:
