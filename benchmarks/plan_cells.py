@@ -18,6 +18,7 @@ one at a time from the remaining fiducial locations (working frame) in
 At every count from 10 to 60 the actual median TRE of the targets against the truth is taken
 with :func:`build` (the model the planner serves). The stopping rule's "enough" count is the
 first count at which the planner's plan says enough (default 2 %; 1 % and 0.5 % reported too;
+never while the decision serves the uncorrected registration without being confident;
 the planner's order is followed up to it, even beyond 60); its actual TRE is set against the TRE
 with all fiducials. The expected median
 TRE of the plan and the leave-one-out check (:func:`check_expected_error`) are recorded too.
@@ -39,7 +40,7 @@ import numpy as np  # noqa: E402
 
 from rbc_registration.core.model import ModelConfig, RbcModel, build_model  # noqa: E402
 from rbc_registration.core.model_planner import (check_expected_error,  # noqa: E402
-                                                 plan_from_model)
+                                                 held_back_by_decision, plan_from_model)
 from rbc_registration.core.planner import PlanConfig  # noqa: E402
 from rbc_registration.core.synthetic import make_cell  # noqa: E402
 
@@ -119,8 +120,9 @@ def run_planner(cell: Cell, start_idx: list[int], stop: int, targets, config: Pl
         if j <= stop:
             expected.append(p.expected_now)
         fraction = float(p.gains.max() / p.expected_now)
+        held = held_back_by_decision(m)      # no enough while the decision is unsure
         for f in FRACTIONS:
-            if f not in enough and fraction < f:
+            if f not in enough and fraction < f and held is None:
                 enough[f] = {"count": j, "tre": tre[-1] if j <= stop else cell.tre(m),
                              "expected": p.expected_now, "expected_all": p.expected_with_all}
                 if f == config.min_gain_fraction and not p.enough:

@@ -6,6 +6,11 @@ hyper-parameters of its kriging, its noise sigma, and whether it applies the cor
     model = build_model(working, destination, ModelConfig(dimension=2, interpolation="kriging"))
     p = plan_from_model(model, candidates_working, targets_working, count=5)
     p.sequence, p.expected_now, p.expected_after, p.enough, p.reason
+
+The plans assume the corrected registration (:func:`error_model_from`). So while a ``cv``
+decision serves the uncorrected registration without being confident (a correction looked
+relevantly better on the held-out fiducials but was not shown better), the error the plan expects
+is not what targets get, and the stopping rule does not say enough (:func:`held_back_by_decision`).
     expected_target_error(model)                 # the expected median TRE now (work volume)
     check_expected_error(model).ratio            # leave-one-out: actual / expected
 """
@@ -19,6 +24,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .constants import DecisionMode
 from .evaluation import leave_one_out
 from .expected_error import ExpectedErrorModel, expected_squared_errors, pooled_median
 from .kriging import KrigingInterpolator
@@ -81,14 +87,36 @@ def served_error_model(model: RbcModel, error_model: ExpectedErrorModel) -> Expe
     return dataclasses.replace(error_model, corrected=_applies_correction(model))
 
 
+def held_back_by_decision(model: RbcModel) -> Optional[str]:
+    """Why the stopping rule cannot say enough yet, or None: a ``cv`` decision that serves the
+    uncorrected registration without being confident (``decision.confident`` False: a correction
+    looked better by at least :data:`.decision.RELEVANT_GAIN` but was not shown better, or
+    cross-validation was not possible). More fiducials give the test the power to decide either
+    way; until then the corrected error the plan expects is not what targets get. Other modes
+    (``rho``, ``on``, ``off``) do not change with more fiducials the same way: never held back."""
+    decision = getattr(model, "decision", None)
+    if (decision is None or decision.apply or decision.confident
+            or decision.mode is not DecisionMode.CV):
+        return None
+    return ("the decision serves the uncorrected registration but is not confident that "
+            "correcting does not help, so more fiducials are needed before the expected error "
+            "below is what targets get")
+
+
 def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[ArrayLike] = None,
                     *, count: int = 1, config: PlanConfig = DEFAULT_PLAN_CONFIG,
                     error_model: Optional[ExpectedErrorModel] = None) -> MeasurementPlan:
     """:func:`plan` from the model's fiducials, repeats and error model (or ``error_model``;
-    default the planning one, ``error_model_from(model)``: corrected registration)."""
+    default the planning one, ``error_model_from(model)``: corrected registration). While
+    :func:`held_back_by_decision` gives a reason, ``enough`` is False, the reason says why, and
+    ``enough_after`` is None (when the decision will apply corrections is not known)."""
     em = error_model_from(model) if error_model is None else error_model
-    return plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
-                config=config)
+    p = plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
+             config=config)
+    held = held_back_by_decision(model)
+    if held is None:
+        return p
+    return p._replace(enough=False, enough_after=None, reason=f"measure more: {held} ({p.reason})")
 
 
 def expected_target_error(model: RbcModel, targets: Optional[ArrayLike] = None, *,

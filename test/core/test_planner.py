@@ -10,6 +10,7 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from rbc_registration.core import ModelConfig, build_model
+from rbc_registration.core.constants import DecisionMode
 from rbc_registration.core.expected_error import (BiasPosterior, ExpectedErrorModel,
                                                   expected_squared_errors, pooled_median)
 from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpolator
@@ -306,11 +307,12 @@ def test_plan_from_a_model(ra_model):
 
 
 class Decided:
-    """A model with the decision of issue 9 (``decision.apply``), for the planner's adapter."""
+    """A model with the decision of issue 9 (``decision.apply``, ``confident``, ``mode``), for
+    the planner's adapter."""
 
-    def __init__(self, model, apply):
+    def __init__(self, model, apply, confident=True, mode=DecisionMode.CV):
         self._model = model
-        self.decision = types.SimpleNamespace(apply=apply)
+        self.decision = types.SimpleNamespace(apply=apply, confident=confident, mode=mode)
 
     def __getattr__(self, name):
         return getattr(self._model, name)
@@ -330,6 +332,30 @@ def test_the_served_error_follows_the_decision_and_the_plan_assumes_the_correcti
     assert p_off.sequence == p_on.sequence
     np.testing.assert_array_equal(p_off.gains, p_on.gains)
     assert p_off.gains.max() > 0
+
+
+def test_no_enough_while_the_decision_is_unsure_whether_to_correct(ra_model):
+    """The plan assumes the correction; while a cv decision serves the uncorrected registration
+    without being confident, enough would stop the user at the uncorrected error."""
+    m, rest, _ = ra_model
+    easy = PlanConfig(min_gain_fraction=0.99)                # every candidate gains less
+    assert plan_from_model(Decided(m, False), rest, config=easy).enough      # confident
+    assert plan_from_model(Decided(m, False, False, DecisionMode.RHO), rest, config=easy).enough
+    held = plan_from_model(Decided(m, False, confident=False), rest, count=2, config=easy)
+    assert not held.enough and held.enough_after is None
+    assert held.reason.startswith("measure more: the decision serves the uncorrected")
+    assert "(enough: the best candidate" in held.reason
+    base = plan_from_model(m, rest, count=2, config=easy)
+    assert held.sequence == base.sequence and held.expected_now == base.expected_now
+    # a real one: RA seed 17, 10 fiducials (the start of benchmarks/plan_cells.py)
+    cell = make_cell("RA", seed=17)
+    x = np.array([t[0] for t in cell.fiducial_measurements])
+    first = np.random.default_rng([17, 13]).permutation(len(x))
+    few = build_model(x[first[:10]], cell.fiducial_truth[first[:10]],
+                      ModelConfig(dimension=2, interpolation="kriging", sigma=cell.spec.sigma))
+    assert not few.decision.apply and not few.decision.confident
+    p = plan_from_model(few, x[first[10:]], config=easy)
+    assert not p.enough and "not confident" in p.reason
 
 
 def test_cross_validation_agrees_with_the_expected_error(ra_model):
