@@ -8,8 +8,9 @@ when its p-value is below :data:`SIGNIFICANCE` divided by the number of correcte
 (Bonferroni: the chance of correcting when no method helps is at most :data:`SIGNIFICANCE`).
 Among such methods the first in :data:`PREFERENCE` is chosen unless another one's held-out errors
 are significantly smaller than its own (the same paired one-sided test at :data:`SIGNIFICANCE`):
-a lower median alone does not switch methods. Otherwise the uncorrected registration is used. Modes ``rho``, ``on`` and ``off`` follow the paper's rule or the
-user; the rho rule's result is reported in every mode.
+a lower median alone does not switch methods. Otherwise the uncorrected registration is used.
+Modes ``rho``, ``on`` and ``off`` follow the paper's rule or the user; the rho rule's result is
+reported in every mode.
 
 Expected error of a target (:class:`ErrorModel`): from the chosen method's held-out errors, which
 are errors of points measured like targets. A conformal bound: the held-out errors e_j, divided by
