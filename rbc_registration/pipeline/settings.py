@@ -107,6 +107,12 @@ SPECS: dict[str, Spec] = {
                               "'reliable' (KEEP_ALL: a burst makes the publisher wait, nothing is "
                               "dropped) or 'best_effort' (matches best-effort driver publishers; "
                               "depth 1000). Read-only.", read_only=True, choices=RELIABILITIES),
+    "input_batch": Spec(32, "Most messages taken from one input topic per wake-up of the "
+                        "executor: after the message the executor hands over, up to "
+                        "input_batch - 1 more already queued ones, in order (rclpy takes one per "
+                        "wake-up and rebuilds its wait set each time, which dominated a burst). "
+                        "A ready service call or timer waits at most one batch; 1 = one message "
+                        "per wake-up.", low=1, high=100_000),
     "state_dir": Spec(STATE_DIR_AUTO, "Directory of the measurement journal, the calibration "
                       "snapshot and saved calibrations ('~' expanded); 'auto' = "
                       "$ROS_HOME/rbc_registration/<namespace tokens>.<node name> ($ROS_HOME "
@@ -191,6 +197,7 @@ class Settings:
     debounce_period: float
     point_buffer: int
     input_reliability: str
+    input_batch: int
     state_dir: str
     calibration_file: str
     journal_fsync: bool

@@ -40,7 +40,8 @@ from ..pipeline.state import EMPTY_STATE, ModelState, build_state, warm_start
 from ..pipeline.worker import LatestWriter, RecomputeWorker
 from . import conversions as conv
 from . import params, samples, saved
-from .guards import guard_input, guard_service
+from .batching import batched_subscription
+from .guards import guard_service
 from .markers import markers_msg
 from .param_callbacks import ParametersMixin
 from .planning import PlanningMixin
@@ -137,9 +138,9 @@ class RegistrationNode(ServicesMixin, ParametersMixin, PlanningMixin, Node):
                 (FiducialPair, "~/fiducial_pairs", self._on_fiducial_pair),
                 (PointStamped, "~/working_point", self._on_working_point),
                 (PointStamped, "~/destination_point", self._on_destination_point)):
-            self.create_subscription(msg_type, topic, guard_input(self.get_logger(), topic,
-                                                                  callback),
-                                     qos, callback_group=inputs)
+            # Up to input_batch queued messages per executor wake-up (ros/batching.py).
+            batched_subscription(self, msg_type, topic, callback, qos, inputs,
+                                 lambda: self._settings.input_batch)
         services = ReentrantCallbackGroup()
         for srv_type, name, callback in (
                 (CorrectTarget, "~/correct_target", self._on_correct_target),
