@@ -107,7 +107,7 @@ SPECS: dict[str, Spec] = {
                               "'reliable' (KEEP_ALL: a burst makes the publisher wait, nothing is "
                               "dropped) or 'best_effort' (matches best-effort driver publishers; "
                               "depth 1000). Read-only.", read_only=True, choices=RELIABILITIES),
-    "input_batch": Spec(32, "Most messages taken from one input topic per wake-up of the "
+    "input_batch": Spec(16, "Most messages taken from one input topic per wake-up of the "
                         "executor: after the message the executor hands over, up to "
                         "input_batch - 1 more already queued ones, in order (rclpy takes one per "
                         "wake-up and rebuilds its wait set each time, which dominated a burst). "

@@ -16,6 +16,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
 from rbc_registration.pipeline.journal_records import JOURNAL_NAME  # noqa: E402
+from rbc_registration.pipeline.settings import SPECS  # noqa: E402
 from rbc_registration.ros.batching import batched_subscription, take_queued  # noqa: E402
 from rbc_registration.ros.node import INPUT, RegistrationNode  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair  # noqa: E402
@@ -184,7 +185,7 @@ class TestNodeBatches:
 
     def test_input_batch_is_validated(self):
         node, _ = self.make_node()
-        assert node._settings.input_batch == 32
+        assert node._settings.input_batch == SPECS["input_batch"].default
         result = node.set_parameters([Parameter("input_batch", value=0)])[0]
         assert not result.successful and "input_batch" in result.reason
-        assert node._settings.input_batch == 32
+        assert node._settings.input_batch == SPECS["input_batch"].default
