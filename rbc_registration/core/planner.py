@@ -86,7 +86,7 @@ class MeasurementPlan(NamedTuple):
     :ivar gains: (C,) per candidate, in input order: expected reduction of the median TRE if
         that candidate alone were measured next.
     :ivar ranking: (C,) all candidate indices by ``gains``, best first (``ranking[0] ==
-        sequence[0]``; ties go to the lower index).
+        sequence[0]`` unless :func:`plan` was given ``first``; ties go to the lower index).
     :ivar enough: the best candidate is expected to gain less than the threshold.
     :ivar reason: the stopping rule's verdict in words.
     :ivar enough_after: how many of ``sequence`` to measure before the next one is expected to gain
@@ -187,8 +187,8 @@ def _remaining(with_all: Optional[float], now: float, count: int) -> str:
 
 def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedErrorModel,
          targets: Optional[ArrayLike] = None, *, count: int = 1,
-         repeats: Optional[ArrayLike] = None, config: PlanConfig = DEFAULT_PLAN_CONFIG
-         ) -> MeasurementPlan:
+         repeats: Optional[ArrayLike] = None, config: PlanConfig = DEFAULT_PLAN_CONFIG,
+         first: Optional[int] = None) -> MeasurementPlan:
     """Rank candidate fiducials by the expected reduction of the median TRE (module docstring).
 
     :param fiducials: (J, d) current fiducials, working frame (J >= d + 1, not degenerate).
@@ -198,6 +198,9 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     :param targets: (K, d) working-frame targets that matter; None: the work volume.
     :param count: length of the greedy sequence (1 <= count <= C).
     :param repeats: measurements averaged into each current fiducial, n_j (default 1 each).
+    :param first: index of a candidate to suggest first whatever its gain (e.g.
+        :func:`.model_planner.decisive_candidate`); the rest of the sequence is greedy after it.
+        ``gains``, ``ranking`` and the stopping rule's verdict stay those of the gains.
     :param config: :class:`PlanConfig`.
     :return: :class:`MeasurementPlan`.
     :raises ValueError: on bad shapes, NaN/inf, a dimension mismatch, degenerate fiducials or
@@ -210,6 +213,9 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     count = _check_count(count, "count")
     if count > len(c):
         raise ValueError(f"count ({count}) exceeds the number of candidates ({len(c)})")
+    if first is not None and not (isinstance(first, (int, np.integer))
+                                  and 0 <= int(first) < len(c)):
+        raise ValueError(f"first must be a candidate index in [0, {len(c)}), got {first!r}")
     inv_n = inverse_repeats(repeats, len(x))
     on_targets = targets is not None
     pts = as_points(targets, "targets", d, 1) if on_targets else \
@@ -252,6 +258,8 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
         low, words = _verdict(before - value, before, best, config)
         if i == 0:
             enough, reason = low, words + _remaining(with_all, now, len(c))
+            if first is not None:
+                best, value = int(first), float(med[int(first)])
         if low and enough_after is None:
             enough_after = i
         sequence.append(best)

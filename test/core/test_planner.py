@@ -14,8 +14,9 @@ from rbc_registration.core.constants import DecisionMode
 from rbc_registration.core.expected_error import (BiasPosterior, ExpectedErrorModel,
                                                   expected_squared_errors, pooled_median)
 from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpolator
-from rbc_registration.core.model_planner import (check_expected_error, error_model_from,
-                                                 expected_target_error, plan_from_model)
+from rbc_registration.core.model_planner import (check_expected_error, decisive_candidate,
+                                                 error_model_from, expected_target_error,
+                                                 plan_from_model)
 from rbc_registration.core.planner import PlanConfig, plan, work_volume
 from rbc_registration.core.registration import rigid_fit
 from rbc_registration.core.rigid_tre import rigid_tre_covariance
@@ -346,7 +347,22 @@ def test_no_enough_while_the_decision_is_unsure_whether_to_correct(ra_model):
     assert held.reason.startswith("measure more: the decision serves the uncorrected")
     assert "(enough: the best candidate" in held.reason
     base = plan_from_model(m, rest, count=2, config=easy)
-    assert held.sequence == base.sequence and held.expected_now == base.expected_now
+    assert held.expected_now == base.expected_now
+    np.testing.assert_array_equal(held.gains, base.gains)
+    np.testing.assert_array_equal(held.ranking, base.ranking)
+    # while unsure, the first suggestion tests the correction: the largest |eps| / its spread
+    k, z = decisive_candidate(m, rest)
+    out = m.interpolators["kriging"](rest)
+    score = np.linalg.norm(out.correction, axis=1) / out.expected_error
+    assert k == int(np.argmax(score)) and z == pytest.approx(score.max())
+    assert held.sequence[0] == k != base.sequence[0] and f"(#{k})" in held.reason
+    assert held.expected_after[0] == pytest.approx(base.expected_now - base.gains[k], rel=1e-9)
+    forced = plan(m.working, rest, error_model_from(m), count=2, repeats=m.counts, config=easy,
+                  first=k)
+    assert forced.sequence == held.sequence               # the rest greedy after it
+    assert forced.expected_after == pytest.approx(held.expected_after, rel=1e-12)
+    with pytest.raises(ValueError, match="first must be a candidate index"):
+        plan(m.working, rest, error_model_from(m), first=len(rest))
     # a real one: RA seed 17, 10 fiducials (the start of benchmarks/plan_cells.py)
     cell = make_cell("RA", seed=17)
     x = np.array([t[0] for t in cell.fiducial_measurements])
