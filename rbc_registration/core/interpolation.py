@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from .sectors import GRID_MIN_TARGETS, SectorIndex, on_fiducial_tolerance, sector_weights
+from .sector_grid import GRID_MIN_TARGETS, SectorIndex
+from .sectors import on_fiducial_tolerance, sector_weights
 from .validation import as_point_pairs, as_points
 
 
@@ -170,7 +171,8 @@ class PaperInterpolator:
         return self._vertices[s], w
 
     def _sectors(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """The 8-sector rule (:mod:`.sectors`); batches use its grid, built on first use."""
+        """The 8-sector rule (:mod:`.sectors`); batches use its grid (:mod:`.sector_grid`),
+        built on first use."""
         if len(t) < GRID_MIN_TARGETS:
             return sector_weights(self.tree, self.points, t)
         if self._sector_index is None:

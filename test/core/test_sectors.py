@@ -7,7 +7,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from rbc_registration.core import sectors
+from rbc_registration.core import sector_grid, sectors
 from rbc_registration.core.interpolation import PaperInterpolator
 
 
@@ -143,7 +143,7 @@ def test_sector_of_is_the_formula():
 def test_grid_cells_are_prepared_once_and_kept():
     rng = np.random.default_rng(6)
     pts = rng.uniform(0, 1, (100, 2))
-    index = sectors.SectorIndex(pts, cKDTree(pts))
+    index = sector_grid.SectorIndex(pts, cKDTree(pts))
     t = spread_targets(pts, 200, rng, margin=0.0)
     index.weights(t)
     once = index._used                    # only cells two targets fell in
