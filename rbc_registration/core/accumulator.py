@@ -9,6 +9,7 @@ A measurement goes through two steps so that a caller can make it durable in bet
 :meth:`FiducialAccumulator.commit` adds the record. :meth:`FiducialAccumulator.add` does both.
 Replaying the committed records (:meth:`FiducialAccumulator.restore`) rebuilds the identical state,
 because a record carries the id it was given: replay never re-runs the proximity assignment.
+The value rules a measurement must pass (id, stamp, coordinates) are :mod:`.measurement_checks`.
 """
 
 from __future__ import annotations
@@ -20,11 +21,12 @@ from typing import Iterable, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .measurement_checks import (MAX_ID_LENGTH, check_age, check_coords, check_id,
+                                 check_record_values, check_stamp)
 from .noise import RepeatStats
 from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSet, Measurement,
                       Record, RejectedMeasurement, quote)
 from .repeats import repeat_outlier
-from .validation import MAX_ABS_COORDINATE
 
 __all__ = ["AUTO_ID_PREFIX", "MAX_ID_LENGTH", "REJECT_REASONS", "EnabledChange",
            "FiducialAccumulator", "FiducialSet", "Measurement", "Record", "RejectedMeasurement"]
@@ -32,32 +34,6 @@ __all__ = ["AUTO_ID_PREFIX", "MAX_ID_LENGTH", "REJECT_REASONS", "EnabledChange",
 #: Ids given to measurements without one are ``auto-0000``, ``auto-0001``, ...
 AUTO_ID_PREFIX = "auto-"
 _AUTO_ID = re.compile(r"^auto-(\d+)$")
-MAX_ID_LENGTH = 256
-
-
-def _check_id(fiducial_id: object) -> None:
-    """The rule for a given fiducial id (live and on replay)."""
-    if not isinstance(fiducial_id, str):
-        raise RejectedMeasurement("malformed", f"fiducial_id must be a string, "
-                                               f"got {quote(fiducial_id)}")
-    if len(fiducial_id) > MAX_ID_LENGTH or any(c in fiducial_id for c in "\n\r\0"):
-        raise RejectedMeasurement("malformed", f"fiducial_id must be at most {MAX_ID_LENGTH} "
-                                               f"characters without line breaks, "
-                                               f"got {quote(fiducial_id)}")
-
-
-def _check_stamp(stamp_s: object) -> float:
-    """The stamp as a finite float (live and on replay)."""
-    if isinstance(stamp_s, bool):
-        raise RejectedMeasurement("malformed", f"stamp must be a number, got {stamp_s!r}")
-    try:
-        stamp = float(stamp_s)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise RejectedMeasurement("malformed", f"stamp must be a number, "
-                                               f"got {quote(stamp_s)}") from None
-    if not math.isfinite(stamp):
-        raise RejectedMeasurement("malformed", f"stamp must be finite, got {stamp_s!r}")
-    return stamp
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> float:
@@ -136,24 +112,6 @@ class FiducialAccumulator:
         self.rejected[reason] += 1
         return RejectedMeasurement(reason, message)
 
-    def _coords(self, name: str, xyz: ArrayLike) -> tuple[float, ...]:
-        # Plain floats, not numpy: a 3-vector per message is faster without array overhead.
-        try:
-            values = tuple(float(v) for v in xyz)  # type: ignore[union-attr]
-        except (TypeError, ValueError):
-            raise RejectedMeasurement("malformed", f"{name} must be a sequence of numbers, "
-                                            f"got {quote(xyz)}") from None
-        if len(values) not in (3, self.dimension):
-            raise RejectedMeasurement("malformed", f"{name} must have 3 or {self.dimension} "
-                                            f"coordinates, got {len(values)}")
-        if not all(map(math.isfinite, values)):
-            raise RejectedMeasurement("nonfinite", f"{name} has NaN or inf: {list(values)}")
-        if max(map(abs, values)) > MAX_ABS_COORDINATE:
-            # Finite, but squaring it overflows: the model could not be built any more.
-            raise RejectedMeasurement("nonfinite", f"{name} has a coordinate beyond "
-                                           f"±{MAX_ABS_COORDINATE:g}: {list(values)}")
-        return values[:self.dimension]
-
     def prepare(self, fiducial_id: Optional[str], working_xyz: ArrayLike,
                 destination_xyz: ArrayLike, working_frame: str = "", destination_frame: str = "",
                 stamp_s: float = 0.0, now_s: Optional[float] = None) -> Measurement:
@@ -181,7 +139,7 @@ class FiducialAccumulator:
                  destination_xyz: ArrayLike, working_frame: str, destination_frame: str,
                  stamp_s: float, now_s: Optional[float]) -> Measurement:
         if fiducial_id is not None:
-            _check_id(fiducial_id)
+            check_id(fiducial_id)
         for name, got, want in (("working frame", working_frame, self.working_frame),
                                 ("destination frame", destination_frame,
                                  self.destination_frame)):
@@ -189,11 +147,11 @@ class FiducialAccumulator:
                 raise RejectedMeasurement("malformed", f"{name} must be a string, got {quote(got)}")
             if got and got != want:
                 raise RejectedMeasurement("frame", f"{name} must be {want!r}, got {quote(got)}")
-        stamp = _check_stamp(stamp_s)
+        stamp = check_stamp(stamp_s)
         if self.max_stamp_age > 0 and now_s is not None:
-            self._check_age(stamp, float(now_s))
-        w = self._coords("working point", working_xyz)
-        d = self._coords("destination point", destination_xyz)
+            check_age(stamp, float(now_s), self.max_stamp_age)
+        w = check_coords("working point", working_xyz, self.dimension)
+        d = check_coords("destination point", destination_xyz, self.dimension)
         auto = not fiducial_id
         fid = self._nearest(d) if auto else fiducial_id
         if fid is None:
@@ -207,17 +165,6 @@ class FiducialAccumulator:
                     raise RejectedMeasurement("outlier", far)
         return Measurement(fid, w, d, stamp, auto)
 
-    def _check_age(self, stamp: float, now: float) -> None:
-        age = now - stamp
-        if age > self.max_stamp_age:
-            raise RejectedMeasurement("stale", f"stamp {stamp:.3f} s is {age:.3g} s older than "
-                                               f"the clock ({now:.3f} s); max_stamp_age is "
-                                               f"{self.max_stamp_age:g} s")
-        if -age > self.max_stamp_age:
-            raise RejectedMeasurement("stale", f"stamp {stamp:.3f} s is {-age:.3g} s ahead of "
-                                               f"the clock ({now:.3f} s); max_stamp_age is "
-                                               f"{self.max_stamp_age:g} s")
-
     def check_record(self, record: Record) -> None:
         """The live value checks of :meth:`prepare` on a record read back from a journal: the
         id rules, finite stamp, finite coordinates within ±``MAX_ABS_COORDINATE``, the
@@ -226,21 +173,7 @@ class FiducialAccumulator:
 
         :raises RejectedMeasurement: naming what is wrong.
         """
-        if isinstance(record, EnabledChange):
-            _check_id(record.fiducial_id)
-            return
-        if not isinstance(record, Measurement):
-            raise RejectedMeasurement("malformed", f"not a journal record: {quote(record)}")
-        if not record.fiducial_id:
-            raise RejectedMeasurement("malformed", "fiducial_id is empty")
-        _check_id(record.fiducial_id)
-        _check_stamp(record.stamp_s)
-        for name, xyz in (("working point", record.working),
-                          ("destination point", record.destination)):
-            if len(xyz) != self.dimension:
-                raise RejectedMeasurement("malformed", f"{name} has {len(xyz)} coordinates, "
-                                                       f"expected {self.dimension}")
-            self._coords(name, xyz)
+        check_record_values(record, self.dimension)
 
     def _nearest(self, destination: tuple[float, ...]) -> Optional[str]:
         if not self._order:
