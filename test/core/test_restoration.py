@@ -6,9 +6,9 @@ from scipy.spatial.transform import Rotation
 
 from rbc_registration.core.mismatch import sigma_l
 from rbc_registration.core.registration import rigid_fit
-from rbc_registration.core.restoration import (
-    closed_form_corrections, dense_gauss_newton_step, gauss_newton_step, normal_equations,
-    restore_rigid_body, rigid_motion_basis)
+from rbc_registration.core.gauss_newton import (dense_gauss_newton_step, gauss_newton_step,
+                                                normal_equations, rigid_motion_basis)
+from rbc_registration.core.restoration import closed_form_corrections, restore_rigid_body
 
 
 def cell(dim=3, j=40, bias=1e-3, seed=0):
