@@ -1,8 +1,9 @@
 """The paper's method as plain Python (numpy + scipy). Never imports rclpy.
 
 Modules: :mod:`registration` (rigid fit), :mod:`mismatch` (L, sigma_L), :mod:`restoration`
-(RBC restoration, eq. 4), :mod:`noise` (sigma in both conventions, rho), :mod:`interpolation`
-and :mod:`kriging` (eq. 5-6; :mod:`gp_fit` fits kriging), :mod:`crossval` and :mod:`decision`
+(RBC restoration, eq. 4; :mod:`gauss_newton`: its step), :mod:`noise` (sigma in both
+conventions, rho), :mod:`interpolation` (:mod:`sectors`, :mod:`sector_grid`: the 2D rule) and
+:mod:`kriging` (eq. 5-6; :mod:`gp_fit` fits kriging), :mod:`crossval` and :mod:`decision`
 (whether and how to correct, expected error), :mod:`model` (everything together;
 :mod:`answers`: what it answers for targets),
 :mod:`evaluation` (TRE, leave-one-out), :mod:`synthetic` (cells modelled on the paper's
