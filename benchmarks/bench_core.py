@@ -39,8 +39,9 @@ from rbc_registration.core.interpolation import PaperInterpolator  # noqa: E402
 from rbc_registration.core.mismatch import sigma_l  # noqa: E402
 from rbc_registration.core.model import ModelConfig, build_model  # noqa: E402
 from rbc_registration.core.registration import rigid_fit  # noqa: E402
-from rbc_registration.core.restoration import (  # noqa: E402
-    dense_gauss_newton_step, gauss_newton_step, restore_rigid_body)
+from rbc_registration.core.gauss_newton import (  # noqa: E402
+    dense_gauss_newton_step, gauss_newton_step)
+from rbc_registration.core.restoration import restore_rigid_body  # noqa: E402
 
 
 def cell(j: int, dim: int, seed: int = 0):

@@ -26,7 +26,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .constants import RESTORATIONS as METHODS
-from .gauss_newton import dense_gauss_newton_step  # noqa: F401 (bench_core imports it here)
 from .gauss_newton import gauss_newton_step
 from .mismatch import sigma_l_stages
 from .registration import rigid_fit
