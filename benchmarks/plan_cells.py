@@ -1,8 +1,8 @@
 """The measurement planner on the synthetic RA-like (2D) and A-like (3D) cells (issue 13).
 
-Run: ``.venv/bin/python benchmarks/plan_cells.py [--seeds 5] [--cells RA,A] [--json out.json]``;
-the cells can run in parallel (one ``--cells`` and ``--json`` each) and be reported together with
-``--load ra.json,a.json``.
+Run: ``.venv/bin/python benchmarks/plan_cells.py [--seeds 5] [--first-seed 0] [--cells RA,A]
+[--json out.json]``; the cells can run in parallel (one ``--cells`` and ``--json`` each) and be
+reported together with ``--load ra.json,a.json``.
 
 Per cell and seed, single measurements (the first measurement of every fiducial and target; the
 truth known): start from 10 fiducials drawn at random from the fiducial set, then add fiducials
@@ -276,6 +276,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", default="RA,A")
     ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. + seeds - 1")
     ap.add_argument("--start", type=int, default=10)
     ap.add_argument("--stop", type=int, default=60)
     ap.add_argument("--figure", default=os.path.join(os.path.dirname(__file__), "plan_cells.png"))
@@ -294,7 +295,7 @@ def main(argv=None) -> int:
     else:
         for name in args.cells.split(","):
             results[name] = []
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 r = run_cell(name, seed, args.start, args.stop, config)
                 print(f"{name} seed {seed}: {r['seconds']:.0f} s", file=sys.stderr)
                 results[name].append(r)
