@@ -18,7 +18,8 @@ one at a time from the remaining fiducial locations (working frame) in
 At every count from 10 to 60 the actual median TRE of the targets against the truth is taken
 with :func:`build` (the model the planner serves). The stopping rule's "enough" count is the
 first count at which the planner's plan says enough (default 2 %; 1 % and 0.5 % reported too;
-never while the decision serves the uncorrected registration without being confident;
+never while the decision serves the uncorrected registration without being confident or the
+bias length scale is below the fiducials' spacing;
 the planner's order is followed up to it, even beyond 60); its actual TRE is set against the TRE
 with all fiducials. The expected median
 TRE of the plan and the leave-one-out check (:func:`check_expected_error`) are recorded too.
@@ -40,8 +41,9 @@ import numpy as np  # noqa: E402
 
 from rbc_registration.core.model import ModelConfig, RbcModel, build_model  # noqa: E402
 from rbc_registration.core.model_planner import (check_expected_error,  # noqa: E402
-                                                 held_back_by_decision, plan_from_model)
-from rbc_registration.core.planner import PlanConfig  # noqa: E402
+                                                 error_model_from, held_back_by_decision,
+                                                 plan_from_model)
+from rbc_registration.core.planner import PlanConfig, unresolved_bias  # noqa: E402
 from rbc_registration.core.synthetic import make_cell  # noqa: E402
 
 ORDERS = ("planner", "planner (work volume)", "random", "grid")
@@ -120,7 +122,7 @@ def run_planner(cell: Cell, start_idx: list[int], stop: int, targets, config: Pl
         if j <= stop:
             expected.append(p.expected_now)
         fraction = float(p.gains.max() / p.expected_now)
-        held = held_back_by_decision(m)      # no enough while the decision is unsure
+        held = held_back_by_decision(m) or unresolved_bias(m.working, error_model_from(m))
         for f in FRACTIONS:
             if f not in enough and fraction < f and held is None:
                 enough[f] = {"count": j, "tre": tre[-1] if j <= stop else cell.tre(m),

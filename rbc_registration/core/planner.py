@@ -34,6 +34,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
 
 from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
@@ -90,7 +91,8 @@ class MeasurementPlan(NamedTuple):
     :ivar enough: the best candidate is expected to gain less than the threshold.
     :ivar reason: the stopping rule's verdict in words.
     :ivar enough_after: how many of ``sequence`` to measure before the next one is expected to gain
-        less than the threshold (0 when ``enough``); None if not within ``sequence``.
+        less than the threshold (0 when ``enough``); None if not within ``sequence``, or while
+        :func:`unresolved_bias` gives a reason (then ``enough`` is False).
     :ivar fiducial_count: J, the fiducials the plan starts from.
     :ivar points: (K, d) where the error was taken: the targets, or the work-volume sample.
     :ivar on_targets: True when ``points`` are the given targets.
@@ -162,6 +164,27 @@ def work_volume(points: ArrayLike, count: int = 400) -> NDArray[np.float64]:
         return p
     inside = grid[hull.simplices(grid) >= 0] if not hull.flat else grid[:0]
     return inside if len(inside) > p.shape[1] else p
+
+
+def unresolved_bias(fiducials: ArrayLike, error_model: ExpectedErrorModel) -> Optional[str]:
+    """Why the error model cannot judge "enough", or None: its bias length scale is shorter than
+    the median nearest-neighbour spacing of the fiducials while the bias it sees is larger than
+    the noise. Fiducials that sparse cannot show how the bias varies between them (a correlation
+    shorter than the sampling is not identifiable), so the model calls the bias unlearnable and
+    every candidate gains little, though more fiducials would resolve it. Measured: A-like seed
+    34, 10 fiducials at a median spacing of 910 mm, length scale 98 mm: "enough" at 10 with 52x the
+    TRE of all fiducials (benchmarks/RESULTS.md, "Planner")."""
+    x = np.asarray(fiducials, dtype=np.float64)
+    if len(x) < 2:
+        return None
+    spacing = float(np.median(cKDTree(x).query(x, k=2)[0][:, 1]))
+    bias = error_model.signal_std * math.sqrt(error_model.dimension)
+    noise = math.sqrt(float(np.trace(error_model.noise_covariance)))
+    if error_model.length_scale >= spacing or bias <= noise:
+        return None
+    return (f"the fitted bias length scale ({error_model.length_scale:.4g}) is shorter than the "
+            f"fiducials' spacing ({spacing:.4g}) while the bias ({bias:.4g}) exceeds the noise "
+            f"({noise:.4g}): too few fiducials to tell how the bias varies")
 
 
 def _verdict(gain: float, before: float, best: int, config: PlanConfig) -> tuple[bool, str]:
@@ -270,6 +293,9 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
             rigid.add(best)
             if bias is not None:
                 bias.add(best)
+    unresolved = unresolved_bias(x, error_model) if error_model.corrected else None
+    if unresolved is not None:
+        enough, enough_after, reason = False, None, f"measure more: {unresolved} ({reason})"
     return MeasurementPlan(tuple(sequence), now, tuple(expected), _frozen(gains),
                            _frozen(np.argsort(-gains, kind="stable")), enough, reason,
                            enough_after, len(x), _frozen(pts), on_targets,

@@ -17,7 +17,7 @@ from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpo
 from rbc_registration.core.model_planner import (check_expected_error, decisive_candidate,
                                                  error_model_from, expected_target_error,
                                                  plan_from_model)
-from rbc_registration.core.planner import PlanConfig, plan, work_volume
+from rbc_registration.core.planner import PlanConfig, plan, unresolved_bias, work_volume
 from rbc_registration.core.registration import rigid_fit
 from rbc_registration.core.rigid_tre import rigid_tre_covariance
 from rbc_registration.core.synthetic import make_cell
@@ -256,6 +256,25 @@ def test_stopping_rule():
     assert by_length.enough and "1000" in by_length.reason
     never = plan(more, rest, em, t, config=PlanConfig(min_gain_fraction=0.0))
     assert not never.enough
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_no_enough_while_the_bias_length_scale_is_below_the_fiducial_spacing(d):
+    """A fitted length scale shorter than the fiducials' spacing (with a bias above the noise)
+    makes every candidate look useless: the plan must not call that enough."""
+    x = grid(3, 0.0, 4.0, d)                              # spacing 2
+    c = grid(5, 0.0, 4.0, d)
+    easy = PlanConfig(min_gain_fraction=0.99)
+    short = plan(x, c, model(d, length=0.5), config=easy, count=2)
+    assert not short.enough and short.enough_after is None
+    assert short.reason.startswith("measure more: the fitted bias length scale (0.5) is shorter "
+                                   "than the fiducials' spacing (2)")
+    assert unresolved_bias(x, model(d, length=0.5)) in short.reason
+    assert plan(x, c, model(d, length=2.0), config=easy).enough       # resolved: spacing
+    tiny = ExpectedErrorModel.from_axis_std(0.01, 0.5, np.full(d, 0.05))   # bias below noise
+    assert unresolved_bias(x, tiny) is None and plan(x, c, tiny, config=easy).enough
+    rigid_only = model(d, length=0.5, corrected=False)    # no bias learnt: nothing to resolve
+    assert plan(x, c, rigid_only, config=easy).enough
 
 
 def test_the_plan_is_immutable_and_typed():
