@@ -41,9 +41,8 @@ import numpy as np  # noqa: E402
 
 from rbc_registration.core.model import ModelConfig, RbcModel, build_model  # noqa: E402
 from rbc_registration.core.model_planner import (check_expected_error,  # noqa: E402
-                                                 error_model_from, held_back_by_decision,
                                                  plan_from_model)
-from rbc_registration.core.planner import PlanConfig, unresolved_bias  # noqa: E402
+from rbc_registration.core.planner import PlanConfig  # noqa: E402
 from rbc_registration.core.synthetic import make_cell  # noqa: E402
 
 ORDERS = ("planner", "planner (work volume)", "random", "grid")
@@ -54,7 +53,8 @@ MODEL = ("kriging interpolation, iterative restoration (2 steps), sigma given (t
          + ("" if _DECISION is None else
             f", decision mode {getattr(_DECISION, 'value', _DECISION)} (the default)"))
 CV_COUNTS = (10, 20, 40, 60)
-#: Stopping fractions reported; the default of PlanConfig (0.02) first.
+#: Stopping fractions reported; the default of PlanConfig (0.02) first, none above it (a held-back
+#: rule is read from the plan's own verdict at the default, run_planner).
 FRACTIONS = (0.02, 0.01, 0.005)
 
 
@@ -122,13 +122,15 @@ def run_planner(cell: Cell, start_idx: list[int], stop: int, targets, config: Pl
         if j <= stop:
             expected.append(p.expected_now)
         fraction = float(p.gains.max() / p.expected_now)
-        held = held_back_by_decision(m) or unresolved_bias(m.working, error_model_from(m))
+        if p.enough and fraction >= config.min_gain_fraction:
+            raise RuntimeError(f"the plan's own rule disagrees: {p.reason}")
+        # Gains below the plan's own threshold without "enough": the rule is held back (the
+        # decision unsure, or the bias unresolved), which holds for every smaller fraction too.
+        held = fraction < config.min_gain_fraction and not p.enough
         for f in FRACTIONS:
-            if f not in enough and fraction < f and held is None:
+            if f not in enough and fraction < f and not held:
                 enough[f] = {"count": j, "tre": tre[-1] if j <= stop else cell.tre(m),
                              "expected": p.expected_now, "expected_all": p.expected_with_all}
-                if f == config.min_gain_fraction and not p.enough:
-                    raise RuntimeError(f"the plan's own rule disagrees: {p.reason}")
         if j >= stop and (len(enough) == len(FRACTIONS) or not follow_to_enough):
             break
         chosen.append(int(rest[p.sequence[0]]))

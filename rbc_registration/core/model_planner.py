@@ -6,6 +6,8 @@ hyper-parameters of its kriging, its noise sigma, and whether it applies the cor
     model = build_model(working, destination, ModelConfig(dimension=2, interpolation="kriging"))
     p = plan_from_model(model, candidates_working, targets_working, count=5)
     p.sequence, p.expected_now, p.expected_after, p.enough, p.reason
+    expected_target_error(model)                 # the expected median TRE now (work volume)
+    check_expected_error(model).ratio            # leave-one-out: actual / expected
 
 The plans assume the corrected registration (:func:`error_model_from`). So while a ``cv``
 decision serves the uncorrected registration without being confident (a correction looked
@@ -13,8 +15,6 @@ relevantly better on the held-out fiducials but was not shown better), the error
 is not what targets get, and the stopping rule does not say enough (:func:`held_back_by_decision`).
 Meanwhile the first suggestion is the one that tests the correction best
 (:func:`decisive_candidate`), the rest of the sequence greedy after it.
-    expected_target_error(model)                 # the expected median TRE now (work volume)
-    check_expected_error(model).ratio            # leave-one-out: actual / expected
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def decisive_candidate(model: RbcModel, candidates: ArrayLike) -> Optional[tuple
     Measured (benchmarks/RESULTS.md, "Planner"): on the RA-like cell, in the 12 unsure states of
     20 seeds' planner runs, the decision applied corrections after this candidate in 10 (after
     the largest-gain candidate in 5), and the median target TRE was 0.155 against 0.195 mm."""
-    kriging = getattr(model, "interpolators", {}).get("kriging")
+    kriging = model.interpolators.get("kriging")
     if kriging is None:
         return None
     c = as_points(candidates, "candidates", model.config.dimension, 1)
@@ -141,15 +141,11 @@ def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[Ar
     em = error_model_from(model) if error_model is None else error_model
     held = held_back_by_decision(model)
     decisive = decisive_candidate(model, candidates) if held is not None else None
-    p = plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
-             config=config, first=None if decisive is None else decisive[0])
-    if held is None:
-        return p
-    test = "" if decisive is None else (
-        f"; the first suggestion (#{decisive[0]}) is where the correction is expected largest "
-        f"against its uncertainty ({decisive[1]:.3g} sigma), to test it")
-    return p._replace(enough=False, enough_after=None,
-                      reason=f"measure more: {held}{test} ({p.reason})")
+    if decisive is not None:
+        held += (f"; the first suggestion (#{decisive[0]}) is where the correction is expected "
+                 f"largest against its uncertainty ({decisive[1]:.3g} sigma), to test it")
+    return plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
+                config=config, first=None if decisive is None else decisive[0], held_back=held)
 
 
 def expected_target_error(model: RbcModel, targets: Optional[ArrayLike] = None, *,

@@ -92,7 +92,8 @@ class MeasurementPlan(NamedTuple):
     :ivar reason: the stopping rule's verdict in words.
     :ivar enough_after: how many of ``sequence`` to measure before the next one is expected to gain
         less than the threshold (0 when ``enough``); None if not within ``sequence``, or while
-        :func:`unresolved_bias` gives a reason (then ``enough`` is False).
+        the stopping rule is held back (:func:`plan`'s ``held_back``, :func:`unresolved_bias`;
+        then ``enough`` is False).
     :ivar fiducial_count: J, the fiducials the plan starts from.
     :ivar points: (K, d) where the error was taken: the targets, or the work-volume sample.
     :ivar on_targets: True when ``points`` are the given targets.
@@ -211,7 +212,7 @@ def _remaining(with_all: Optional[float], now: float, count: int) -> str:
 def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedErrorModel,
          targets: Optional[ArrayLike] = None, *, count: int = 1,
          repeats: Optional[ArrayLike] = None, config: PlanConfig = DEFAULT_PLAN_CONFIG,
-         first: Optional[int] = None) -> MeasurementPlan:
+         first: Optional[int] = None, held_back: Optional[str] = None) -> MeasurementPlan:
     """Rank candidate fiducials by the expected reduction of the median TRE (module docstring).
 
     :param fiducials: (J, d) current fiducials, working frame (J >= d + 1, not degenerate).
@@ -224,6 +225,10 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     :param first: index of a candidate to suggest first whatever its gain (e.g.
         :func:`.model_planner.decisive_candidate`); the rest of the sequence is greedy after it.
         ``gains``, ``ranking`` and the stopping rule's verdict stay those of the gains.
+    :param held_back: why the caller's state does not allow "enough" yet (e.g.
+        :func:`.model_planner.held_back_by_decision`); with it, or with a reason from
+        :func:`unresolved_bias`, ``enough`` is False, ``enough_after`` None, and ``reason``
+        starts "measure more:" with the reasons, the gains' verdict in brackets.
     :param config: :class:`PlanConfig`.
     :return: :class:`MeasurementPlan`.
     :raises ValueError: on bad shapes, NaN/inf, a dimension mismatch, degenerate fiducials or
@@ -293,9 +298,10 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
             rigid.add(best)
             if bias is not None:
                 bias.add(best)
-    unresolved = unresolved_bias(x, error_model) if error_model.corrected else None
-    if unresolved is not None:
-        enough, enough_after, reason = False, None, f"measure more: {unresolved} ({reason})"
+    holds = [r for r in (held_back, unresolved_bias(x, error_model) if error_model.corrected
+                         else None) if r]
+    if holds:
+        enough, enough_after, reason = False, None, f"measure more: {'; '.join(holds)} ({reason})"
     return MeasurementPlan(tuple(sequence), now, tuple(expected), _frozen(gains),
                            _frozen(np.argsort(-gains, kind="stable")), enough, reason,
                            enough_after, len(x), _frozen(pts), on_targets,
