@@ -41,7 +41,8 @@ def add_parser(sub: Any) -> None:
     add_model_options(p, "default: 3 if the file has z", "the file's unit", defaults=True)
     p.add_argument("--outlier-distance", type=non_negative, metavar="D",
                    help="repeats of FIDUCIALS.csv checked as by register (default: 0.25 x the "
-                        "fiducial spacing; 0 = off)")
+                        "fiducial spacing; 0 = off); rows of one candidate or target id farther "
+                        "apart than D (default: 0.25 x their spacing) refuse that file")
     p.add_argument("--unit", default="mm", help="unit of the files, used as a label (default mm)")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the plan as JSON")
     p.add_argument("--figure", type=Path, metavar="OUT.png",
@@ -71,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
     fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance)
     for note in fid.notes:
         warn("plan", note)
-    cand = read_targets(args.candidates, fid.dimension)
-    tgt = read_targets(args.targets, fid.dimension) if args.targets else None
+    cand = read_targets(args.candidates, fid.dimension, args.outlier_distance, "candidate")
+    tgt = read_targets(args.targets, fid.dimension, args.outlier_distance) if args.targets \
+        else None
     count = min(DEFAULT_COUNT, len(cand.ids)) if args.count is None else args.count
     model = build_model(fid.working, fid.destination, model_config(args, fid.dimension),
                         ids=fid.ids, working_repeats=fid.working_repeats)

@@ -31,7 +31,9 @@ def add_parser(sub: Any) -> None:
                      help="a repeat farther than D (the file's unit) from the mean of its id's "
                           "earlier rows: in the destination frame the file is refused (conflict), "
                           "in the working frame the row is ignored with a warning (the node's "
-                          "outlier_distance); 0 = off (default: 0.25 x the fiducial spacing)")
+                          "outlier_distance); 0 = off (default: 0.25 x the fiducial spacing). "
+                          "Rows of one target id farther apart than D (default: 0.25 x the "
+                          "target spacing) refuse the targets file")
     reg.add_argument("--unit", default="mm", help="unit of the file, used as a label (default mm)")
     reg.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
     reg.set_defaults(func=run)
@@ -75,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = model_config(args, fid.dimension, fid.ids)
     model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
                         working_repeats=fid.working_repeats)
-    tgt = read_targets(args.targets, fid.dimension) if args.targets else None
+    tgt = read_targets(args.targets, fid.dimension, args.outlier_distance) if args.targets \
+        else None
     loo = leave_one_out(model) if args.loo else None
     report = model_report(model, tgt.ids if tgt else (), tgt.working if tgt else None,
                           tgt.destination if tgt else None, loo, args.unit)

@@ -14,13 +14,14 @@ from scipy.spatial import cKDTree
 
 def repeat_outlier(fiducial_id: str, frame: str, point: Sequence[float],
                    earlier_mean: Sequence[float], n_earlier: int, limit: float,
-                   limit_name: str = "outlier_distance") -> Optional[str]:
-    """Whether ``point`` is farther than ``limit`` from the mean of the fiducial's earlier
-    (accepted) repeats.
+                   limit_name: str = "outlier_distance", kind: str = "fiducial") -> Optional[str]:
+    """Whether ``point`` is farther than ``limit`` from the mean of the fiducial's (or target's)
+    earlier (accepted) repeats.
 
     :param frame: ``working`` or ``destination`` (named in the message).
     :param limit: the distance; 0 (or no earlier repeat) switches the check off.
     :param limit_name: how the message names the limit.
+    :param kind: what the id names in the message (``fiducial``, ``target``).
     :return: ``None`` when the point is fine, else the message naming the fiducial, the
         distance and the limit.
     """
@@ -29,7 +30,7 @@ def repeat_outlier(fiducial_id: str, frame: str, point: Sequence[float],
     dist = math.dist(point, earlier_mean)
     if dist <= limit:
         return None
-    return (f"fiducial {fiducial_id!r}: {frame} point is {dist:.6g} from the mean of its "
+    return (f"{kind} {fiducial_id!r}: {frame} point is {dist:.6g} from the mean of its "
             f"{n_earlier} earlier repeat(s), more than {limit_name} {limit:g}")
 
 

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from ..core.constants import DIMENSIONS
 from ..core.repeats import repeat_outlier, typical_spacing
 from ..core.validation import MAX_ABS_COORDINATE
-from ..pipeline.targets import mean_by_id
+from ..pipeline.targets import first_conflict, mean_by_id
 
 PathLike = Union[str, Path]
 #: A repeat of one id farther than this fraction of the typical fiducial spacing from the mean of
@@ -159,15 +159,18 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
 
 
 def _repeat_limits(groups: dict[str, list[tuple[int, list[float], list[float]]]],
-                   outlier_distance: Optional[float]) -> tuple[tuple[float, str], ...]:
-    """(limit, how it is named) for the working and the destination frame."""
+                   outlier_distance: Optional[float], kind: str = "fiducial"
+                   ) -> tuple[tuple[float, str], ...]:
+    """(limit, how it is named) for the working and the destination frame: ``outlier_distance``,
+    else :data:`CONFLICT_FRACTION` x the typical spacing of the ids' first rows (``kind``: what
+    the ids are, for the name)."""
     if outlier_distance is not None:
         return ((float(outlier_distance), "outlier_distance"),) * 2
     out = []
     for k in (1, 2):
         spacing = typical_spacing([g[0][k] for g in groups.values()])
         out.append((CONFLICT_FRACTION * spacing,
-                    f"{CONFLICT_FRACTION:g} x the fiducial spacing {spacing:.6g} ="))
+                    f"{CONFLICT_FRACTION:g} x the {kind} spacing {spacing:.6g} ="))
     return tuple(out)
 
 
@@ -195,9 +198,19 @@ def _checked_repeats(path: PathLike, fid: str, group: list[tuple[int, list[float
     return work, dest
 
 
-def read_targets(path: PathLike, dim: int) -> TargetTable:
+def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = None,
+                 kind: str = "target") -> TargetTable:
     """Read TARGETS.csv: ``id,wx,wy[,wz]`` and optionally ``dx,dy[,dz]`` (truth).
 
+    Rows sharing an id are repeated measurements of one point and are averaged. A row farther
+    than the limit from the mean of the id's earlier rows, in the working frame or in the truth,
+    is a conflict (two points under one id, e.g. a pasted row not renamed): the file is refused,
+    as :func:`read_fiducials` refuses conflicting destination points.
+
+    :param outlier_distance: the limit in the file's unit; 0 switches the check off; ``None``:
+        :data:`CONFLICT_FRACTION` x the typical spacing of the file's ids (their first rows) in
+        each frame.
+    :param kind: what the ids are, named in messages (``target``, ``candidate``).
     :raises CsvError: naming the file, row and column of the first problem.
     """
     header, rows = _read_rows(path, ["id", "wx", "wy"] + (["wz"] if dim == 3 else []))
@@ -207,15 +220,28 @@ def read_targets(path: PathLike, dim: int) -> TargetTable:
     if partial and not has_truth:
         raise CsvError(f"{path}: truth columns incomplete: has {', '.join(partial)}, needs "
                        + ", ".join(f"d{a}" for a in axes))
-    tids, work, truth = [], [], []
+    groups: dict[str, list[tuple[int, list[float], list[float]]]] = {}
+    tids, lines, work, truth = [], [], [], []
     for line, row in enumerate(rows, start=2):
         tid = row.get("id") or ""
         if not tid:
             raise CsvError(f"{path}: row {line}: column id is empty")
+        w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
+        t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes] if has_truth else w
+        groups.setdefault(tid, []).append((line, w, t))
         tids.append(tid)
-        work.append([_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes])
-        if has_truth:
-            truth.append([_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes])
+        lines.append(line)
+        work.append(w)
+        truth.append(t)
+    (w_limit, w_name), (t_limit, t_name) = _repeat_limits(groups, outlier_distance, kind)
+    frames = [("working", work, w_limit, w_name)]
+    if has_truth:
+        frames.append(("truth", truth, t_limit, t_name))
+    conflict = first_conflict(tids, frames, kind)
+    if conflict is not None:
+        raise CsvError(f"{path}: id {tids[conflict.row]!r} (first at row {lines[conflict.first]}) "
+                       f"has conflicting {conflict.frame} points: row {lines[conflict.row]}: "
+                       f"{conflict.message}")
     ids, means = mean_by_id(tids, work, *([truth] if has_truth else []))
     return TargetTable(ids, means[0], means[1] if has_truth else None)
 

@@ -21,7 +21,7 @@ from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
 from .settings import Settings
 from .state import build_state
-from .targets import Targets, mean_by_id
+from .targets import Targets, first_conflict, mean_by_id
 
 Input = Union[PairMessage, PointMessage]
 
@@ -107,8 +107,9 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings) -> Opti
     """Targets from recorded ``FiducialPair`` targets, repeats of an id averaged (first-seen
     order); truth only when every target has a finite destination point.
 
-    :raises EvaluationError: for a target in another frame than the node's, or a non-finite
-        working point.
+    :raises EvaluationError: for a target in another frame than the node's, a non-finite
+        working point, or a repeat farther than ``outlier_distance`` from the mean of its id's
+        earlier messages in either frame (:func:`.targets.first_conflict`).
     """
     if not targets:
         return None
@@ -120,10 +121,19 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings) -> Opti
                 raise EvaluationError(f"target {m.fiducial_id or k!r}: {name} frame {got!r}, "
                                       f"expected {want!r}")
     ids = [m.fiducial_id or f"target-{k}" for k, m in enumerate(targets)]
-    unique, (working, truth) = mean_by_id(ids, [m.working[:d] for m in targets],
-                                          [m.destination[:d] for m in targets])
-    if not np.all(np.isfinite(working)):
+    work = [m.working[:d] for m in targets]
+    dest = [m.destination[:d] for m in targets]
+    if not np.all(np.isfinite(work)):
         raise EvaluationError("a target's working point has NaN or inf")
+    limit = settings.outlier_distance
+    frames = [("working", work, limit, "outlier_distance")]
+    if np.all(np.isfinite(dest)):
+        frames.append(("destination", dest, limit, "outlier_distance"))
+    conflict = first_conflict(ids, frames)
+    if conflict is not None:
+        raise EvaluationError(f"recorded targets: message {conflict.row} conflicts with the "
+                              f"earlier repeats of its id: {conflict.message}")
+    unique, (working, truth) = mean_by_id(ids, work, dest)
     return Targets(unique, working, truth if np.all(np.isfinite(truth)) else None, "bag")
 
 

@@ -1,5 +1,6 @@
 """Targets to correct and evaluate, and the one rule for repeated rows of an id: their mean,
-in first-seen order (CSV targets, targets recorded in a bag).
+in first-seen order (CSV targets, targets recorded in a bag), refused when a row lies farther
+than a limit from the mean of its id's earlier rows (:func:`first_conflict`).
 """
 
 from __future__ import annotations
@@ -8,6 +9,8 @@ from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from ..core.repeats import repeat_outlier
 
 
 class Targets(NamedTuple):
@@ -39,3 +42,42 @@ def mean_by_id(ids: Sequence[str], *columns: ArrayLike) -> tuple[tuple[str, ...]
             raise ValueError(f"got {len(values)} rows for {len(ids)} ids")
         means.append(np.array([values[index].mean(axis=0) for index in rows.values()]))
     return tuple(rows), means
+
+
+class Conflict(NamedTuple):
+    """A repeated row of an id that lies too far from the id's earlier rows.
+
+    :ivar row: its index among the rows; ``first``: the index of the id's first row.
+    :ivar frame: the frame it conflicts in; ``message``: id, distance and limit in words.
+    """
+
+    row: int
+    first: int
+    frame: str
+    message: str
+
+
+def first_conflict(ids: Sequence[str], frames: Sequence[tuple[str, ArrayLike, float, str]],
+                   kind: str = "target") -> Optional[Conflict]:
+    """The first repeated row (frame by frame, in row order) farther than its frame's limit from
+    the mean of its id's earlier rows (:func:`~rbc_registration.core.repeats.repeat_outlier`):
+    two points under one id.
+
+    :param ids: one id per row.
+    :param frames: per frame ``(name, points (N, d), limit, how the limit is named)``; a limit
+        of 0 switches that frame's check off.
+    :param kind: what the ids are, for the message (``target``, ``candidate``).
+    :return: :class:`Conflict`, or None when every id's rows agree.
+    """
+    rows: dict[str, list[int]] = {}
+    for k, key in enumerate(ids):
+        rows.setdefault(key, []).append(k)
+    for name, points, limit, limit_name in frames:
+        values = np.asarray(points, dtype=np.float64)
+        for key, index in rows.items():
+            for i in range(1, len(index)):
+                far = repeat_outlier(key, name, values[index[i]],
+                                     values[index[:i]].mean(axis=0), i, limit, limit_name, kind)
+                if far:
+                    return Conflict(index[i], index[0], name, far)
+    return None

@@ -147,17 +147,22 @@ def test_the_top_suggestion_fills_the_empty_region(tmp_path):
     (["{fid}", "--candidates", "{cand}", "--min-gain", "nan"], "min_gain_length must be"),
     (["{few}", "--candidates", "{cand}"], "needs at least 3 fiducials, got 2"),
     (["{fid}", "--candidates", "{empty}"], "no data rows"),
+    (["{fid}", "--candidates", "{dupid}"],
+     "id 'a' (first at row 2) has conflicting working points: row 4: candidate 'a'"),
+    (["{fid}", "--candidates", "{cand}", "--targets", "{dupid}"], "row 4: target 'a'"),
 ])
 def test_bad_input_is_one_clear_line(tmp_path, ra, args, message):
     (tmp_path / "bad.csv").write_text("id,wx,wy\na,1,2\nb,1,x\n")
     (tmp_path / "nowz.csv").write_text("id,wx,wy\na,1,2\nb,3,4\n")
     (tmp_path / "empty.csv").write_text("id,wx,wy\n")
+    (tmp_path / "dupid.csv").write_text("id,wx,wy\na,0,0\nb,100,0\na,60,0\n")
     (tmp_path / "few.csv").write_text("id,wx,wy,dx,dy\na,0,0,0,0\nb,1,0,1,0\n")
     (tmp_path / "fid3.csv").write_text("id,wx,wy,wz,dx,dy,dz\n" + "".join(
         f"p{i},{x},{y},{z},{x},{y},{z}\n" for i, (x, y, z) in enumerate(
             [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)])))
     files = {"bad": tmp_path / "bad.csv", "nowz": tmp_path / "nowz.csv",
-             "empty": tmp_path / "empty.csv", "few": tmp_path / "few.csv",
+             "empty": tmp_path / "empty.csv", "dupid": tmp_path / "dupid.csv",
+             "few": tmp_path / "few.csv",
              "fid3": tmp_path / "fid3.csv", "fid": ra[0] / "fiducials.csv",
              "cand": ra[0] / "candidates.csv"}
     proc = run(*[a.format(**files) for a in args], check=False)

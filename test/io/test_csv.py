@@ -140,3 +140,34 @@ def test_a_working_repeat_far_from_its_siblings_is_dropped_with_one_line(tmp_pat
     strict = read_fiducials(write(tmp_path, text), outlier_distance=0.0012)
     assert len(strict.notes) == 2 and "row 5" in strict.notes[1]
     assert read_fiducials(write(tmp_path, text), outlier_distance=0).notes == ()
+
+
+# -- repeated target / candidate ids: averaged when they agree, refused when they do not ---------
+TARGETS = "id,wx,wy,wz\na,0,0,0\nb,100,0,0\nc,0,100,0\n"
+
+
+def test_target_repeats_that_agree_are_averaged(tmp_path):
+    t = read_targets(write(tmp_path, TARGETS + "a,0.02,0,0\n"), 3)
+    assert t.ids == ("a", "b", "c")
+    np.testing.assert_allclose(t.working[0], [0.01, 0, 0])
+
+
+@pytest.mark.parametrize("extra, kind, message", [
+    # a pasted row not renamed: 70.7 from a, the limit 0.25 x the spacing 100
+    ("a,50,50,0\n", "target", r"id 'a' \(first at row 2\) has conflicting working points: row 5: "
+                              r"target 'a': working point is 70\.7.* more than 0\.25 x the target "
+                              r"spacing 100 = 25"),
+    ("b,130,0,0\n", "candidate", r"id 'b' \(first at row 3\).*row 5: candidate 'b'"),
+], ids=["target", "candidate"])
+def test_target_repeats_far_apart_are_refused(tmp_path, extra, kind, message):
+    with pytest.raises(CsvError, match=message):
+        read_targets(write(tmp_path, TARGETS + extra), 3, kind=kind)
+
+
+def test_target_truth_conflict_and_the_given_limit(tmp_path):
+    text = "id,wx,wy,dx,dy\na,0,0,5,5\nb,100,0,105,5\na,0.01,0,9,5\n"
+    with pytest.raises(CsvError, match=r"conflicting truth points: row 4: target 'a': truth "
+                                       r"point is 4 .*outlier_distance 1"):
+        read_targets(write(tmp_path, text), 2, outlier_distance=1.0)
+    t = read_targets(write(tmp_path, text), 2, outlier_distance=0.0)      # 0: off
+    np.testing.assert_allclose(t.destination[0], [7, 5])
