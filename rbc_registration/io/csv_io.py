@@ -81,6 +81,16 @@ def _read_rows(path: PathLike, required: list[str]) -> tuple[list[str], list[dic
         raise CsvError(f"{p}: not a readable CSV file ({exc})") from None
     if not header:
         raise CsvError(f"{p}: empty file (expected a header {','.join(required)})")
+    twice = sorted({h for h in header if h and header.count(h) > 1})
+    if twice:
+        raise CsvError(f"{p}: column(s) {', '.join(twice)} appear more than once in the header "
+                       f"{','.join(header)}")
+    for line, row in enumerate(rows, start=2):
+        rest = row.get("")                 # csv.DictReader's list of fields beyond the header
+        extra = [v for v in rest if v and v.strip()] if isinstance(rest, list) else []
+        if extra:
+            raise CsvError(f"{p}: row {line}: {len(header) + len(rest)} fields, the header "
+                           f"has {len(header)} (extra: {','.join(extra)})")
     missing = [c for c in required if c not in header]
     if missing:
         raise CsvError(f"{p}: missing column(s) {', '.join(missing)}; header is "

@@ -1,5 +1,7 @@
 """CSV reading: round trips and one test per validation rule (the bad-input matrix, CSV rows)."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -171,3 +173,19 @@ def test_target_truth_conflict_and_the_given_limit(tmp_path):
         read_targets(write(tmp_path, text), 2, outlier_distance=1.0)
     t = read_targets(write(tmp_path, text), 2, outlier_distance=0.0)      # 0: off
     np.testing.assert_allclose(t.destination[0], [7, 5])
+
+
+@pytest.mark.parametrize("text, message", [
+    (H3.rstrip("\n") + ",wx\na,0,0,0,1,0,0,5\n",
+     "column(s) wx appear more than once in the header"),
+    (H3 + "a,0,0,0,1,0,0,7\n", "row 2: 8 fields, the header has 7 (extra: 7)"),
+])
+def test_ambiguous_columns_are_refused(tmp_path, text, message):
+    for read in (read_fiducials, lambda p: read_targets(p, 3)):
+        with pytest.raises(CsvError, match=re.escape(message)):
+            read(write(tmp_path, text))
+
+
+def test_empty_trailing_fields_are_not_extra(tmp_path):
+    t = read_fiducials(write(tmp_path, GOOD.replace("d,0,0,1,10,0,1", "d,0,0,1,10,0,1,,")))
+    assert t.ids == ("a", "b", "c", "d")
