@@ -224,6 +224,30 @@ def batch_table(repeat: int, k: int = 10_000) -> list[str]:
     return rows
 
 
+def fresh_table(batches: int = 12, k: int = 10_000) -> list[str]:
+    """2D ``correct_targets`` of new random targets in every call (one model kept): the grid
+    cells of the sector rule are prepared the second time targets fall in them, so the cost per
+    target falls batch by batch towards the repeated-batch figure of :func:`batch_table`."""
+    shown = [b for b in (1, 2, 3, 4, 6, 8, 12, 16, 24) if b <= batches]
+    rows = ["| cell | J | " + " | ".join(f"batch {b}" for b in shown) + " |",
+            "|---|---|" + "---|" * len(shown)]
+    for name, x, y in [("grid RA-like", *grid_cell(2)), ("random", *cell(277, 2)),
+                       ("random", *cell(1000, 2))]:
+        model = build_model(x, y, ModelConfig(dimension=2, sigma=1e-4))
+        tree = cKDTree(model.interpolator.points)
+        rng = np.random.default_rng(2)
+        lo, hi = x.min(axis=0), x.max(axis=0)
+        got = {}
+        for b in range(1, max(shown) + 1):
+            targets = lo + (hi - lo) * rng.uniform(size=(k, 2))
+            t = seconds(lambda: model.correct(targets))
+            floor = seconds(lambda: tree.query(targets, k=8))
+            got[b] = f"{t * 1e6 / k:.1f} µs ({t / floor:.1f}x)"
+        rows.append(f"| {name} | {len(x)} | " + " | ".join(got[b] for b in shown) + " |")
+        print(f"  fresh batches {name} J={len(x)} done", file=sys.stderr)
+    return rows
+
+
 def correction_table(repeat: int) -> list[str]:
     rows = ["| interpolation | J | one target (model.correct) |", "|---|---|---|"]
     for method in ("paper", "kriging"):
@@ -241,11 +265,18 @@ def main() -> None:
     p.add_argument("--repeat", type=int, default=30)
     p.add_argument("--large", action="store_true", help="also J up to 10,000 / 100,000")
     p.add_argument("--threads", action="store_true", help="keep the BLAS thread default")
+    p.add_argument("--fresh", action="store_true",
+                   help="only the 2D batches of new targets in every call (per target, ratio "
+                        "to the k = 8 query)")
     p.add_argument("--one-target", action="store_true",
                    help="only the one-target table (e.g. to compare trees: PYTHONPATH=<tree>)")
     args = p.parse_args()
     print(f"BLAS threads: {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}, "
           f"cores: {os.cpu_count()}\n")
+    if args.fresh:
+        print("### Target corrections, 2D, new targets in every call (K = 10,000)\n")
+        print("\n".join(fresh_table()))
+        return
     if args.one_target:
         tree = os.path.dirname(os.path.dirname(rbc_registration.__file__))
         print(f"### One target correction, in process ({tree})\n")
