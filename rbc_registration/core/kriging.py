@@ -9,12 +9,19 @@ the corrections by maximising the marginal likelihood, shared by the d component
 shrinks corrections toward zero where noise dominates the field (rho < 1), so correcting does not
 make registration worse; where the bias dominates it follows the fiducials closely. The posterior
 standard deviation is reported as the expected error of the correction.
+
+Up to :data:`EXACT_MAX_FIDUCIALS` fiducials everything is exact. Above it (every answer's exact
+variance reads the J x J factor: 7.5-10 ms per target at J = 5,000) the posterior variance and the
+cross-validation's held-out predictions condition on a summary of the data instead
+(:mod:`.kriging_summary`: the nearest fiducials' measurements and the exact posterior means at
+inducing fiducials spread over the cell), which never gives a smaller variance than the exact one;
+the posterior mean of a target stays exact.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Union
 
 import numpy as np
 import scipy.linalg
@@ -25,10 +32,16 @@ from scipy.spatial.distance import cdist
 from .gp_fit import (JITTER, KrigingHyperparameters, MarginalLikelihood, fit_hyperparameters,
                      inverse_from_cholesky, matern52, repeat_counts)
 from .interpolation import HullTest, Interpolated
+from .kriging_summary import DataSummary, HeldOutWeights, cholesky_blocked
 from .validation import as_point_pairs, as_points
 
-__all__ = ["KrigingHyperparameters", "KrigingInterpolator", "MarginalLikelihood",
-           "fit_hyperparameters"]
+__all__ = ["EXACT_MAX_FIDUCIALS", "KrigingHyperparameters", "KrigingInterpolator",
+           "MarginalLikelihood", "fit_hyperparameters"]
+
+#: Exact kriging up to this many fiducials; above it the posterior variance and the held-out
+#: predictions of cross-validation condition on a summary of the data (module docstring,
+#: :mod:`.kriging_summary`). Measured against the exact values in benchmarks/RESULTS.md.
+EXACT_MAX_FIDUCIALS = 2000
 
 #: Target-fiducial covariance entries :meth:`KrigingInterpolator.__call__` holds at once
 #: (16 MB of float64 per array).
@@ -69,11 +82,22 @@ class KrigingInterpolator:
         self.hyper = hyperparameters or fit_hyperparameters(self.points, self.corrections, sigma,
                                                             n, warm_start)
         k = self._cov(cdist(self.points, self.points))
-        k.flat[::j + 1] += self._noise_var()
-        # numpy's Cholesky releases the GIL (scipy's cho_factor held it for 0.4 s at J = 4,000,
-        # stalling the node's executor); chol = (L^T, False): upper, Fortran-ordered, no copy.
-        self.chol = (np.linalg.cholesky(k).T, False)
-        self.alpha = scipy.linalg.cho_solve(self.chol, self.corrections, check_finite=False)
+        noise = self._noise_var()
+        k.flat[::j + 1] += noise
+        #: The summary the variance conditions on above :data:`EXACT_MAX_FIDUCIALS`, else None.
+        self.summary: Optional[DataSummary] = None
+        if j > EXACT_MAX_FIDUCIALS:
+            low = cholesky_blocked(k)                   # in place, GIL-free matmul blocks
+            self.chol = (low.T, False)
+            self.summary = DataSummary(self.points, self._cov, low, noise,
+                                       self.hyper.signal_std ** 2, self.corrections)
+            self.alpha = self.summary.alpha
+        else:
+            # numpy's Cholesky releases the GIL (scipy's cho_factor held it for 0.4 s at
+            # J = 4,000, stalling the node's executor); chol = (L^T, False): upper,
+            # Fortran-ordered, no copy.
+            self.chol = (np.linalg.cholesky(k).T, False)
+            self.alpha = scipy.linalg.cho_solve(self.chol, self.corrections, check_finite=False)
 
     @property
     def noise_axis_std(self) -> float:
@@ -91,7 +115,8 @@ class KrigingInterpolator:
         return h.noise_std ** 2 / self.dim * self.inv_n + JITTER * h.signal_std ** 2
 
     def held_out(self, groups: Sequence[NDArray[np.intp]]
-                 ) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+                 ) -> list[tuple[Union[NDArray[np.float64], HeldOutWeights],
+                                 NDArray[np.float64]]]:
         """The GP's exact prediction of held-out fiducials from the others, per group.
 
         For each index set S: ``(W, std)`` with W (|S|, J - |S|) such that ``W @ e`` is the
@@ -99,8 +124,11 @@ class KrigingInterpolator:
         (in index order), and ``std`` (|S|,) the predictive standard deviation per axis of a
         measurement at S (field plus its noise). From the precision matrix P = K^-1:
         W = -P_SS^-1 P_S,rest, covariance P_SS^-1 (the GP refitted without S, same
-        hyper-parameters).
+        hyper-parameters). Above :data:`EXACT_MAX_FIDUCIALS` fiducials: the summary's predictor
+        (:meth:`.kriging_summary.DataSummary.held_out`; W a linear map, not an array).
         """
+        if self.summary is not None:
+            return self.summary.held_out(groups)
         p = inverse_from_cholesky(self.chol[0] if self.chol[1] else self.chol[0].T)
         out = []
         for group in groups:
@@ -136,9 +164,12 @@ class KrigingInterpolator:
 
     def _posterior(self, t: NDArray[np.float64]) -> tuple[NDArray[np.float64],
                                                             NDArray[np.float64]]:
-        """Posterior mean (K, d) and variance per axis (K,) at targets ``t``."""
+        """Posterior mean (K, d) and variance per axis (K,) at targets ``t`` (the variance from
+        the summary above :data:`EXACT_MAX_FIDUCIALS`)."""
         ks = self._cov(cdist(t, self.points))
         mean = ks @ self.alpha
+        if self.summary is not None:
+            return mean, self.summary.variance(t, ks)
         v = self._lower_solve(ks.T)         # overwrites ks
         return mean, self.hyper.signal_std ** 2 - np.einsum("jk,jk->k", v, v)
 
