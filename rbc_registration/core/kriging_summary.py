@@ -267,7 +267,12 @@ class DataSummary:
             nn = cKDTree(kept).query(self.points[s], min(self.neighbours, len(r)))[1]
             nn = nn.reshape(len(s), -1)
             k_n = np.take_along_axis(k_rs.T, nn, axis=1)
-            got = condition(self.signal_var, k_rs.T @ basis, (k_rr_phi @ t)[nn],
+            # Cov(f_S, w) = K_SR Phi_R T, and K_SR Phi_R = K_XU[S] - K_SS Phi_S (K Phi = K_XU):
+            # an |S| x |S| product instead of |S| x |R|
+            k_ss = self.cov(cdist(self.points[s], self.points[s]))
+            k_ss.flat[::len(s) + 1] += self.noise_var[s]
+            a_s = (self.k_xu[s] - k_ss @ self.phi[s]) @ t
+            got = condition(self.signal_var, a_s, (k_rr_phi @ t)[nn],
                             self._c_nn(kept, self.noise_var[r], nn), k_n)
             std = np.sqrt(np.maximum(got.variance, 0.0) + self.noise_var[s])
             out.append((HeldOutWeights(nn, got, basis), std))
