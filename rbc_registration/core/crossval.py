@@ -27,7 +27,8 @@ kept fiducials.
 
 from __future__ import annotations
 
-from typing import Mapping, NamedTuple, Optional, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Callable, Mapping, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -142,11 +143,31 @@ def loo_rigid_errors(working: NDArray[np.float64], destination: NDArray[np.float
     return np.linalg.norm(pred - y, axis=1)
 
 
+def _held_out(kriging: Union[None, KrigingInterpolator, Future],
+              groups: Sequence[NDArray[np.intp]]) -> Optional[Callable[[], list]]:
+    """``kriging.held_out(groups)`` as a call that returns it. A kriging model above the exact
+    threshold (the summary's held-out predictions, ~1 s of GIL-free numpy at J = 5,000), or one
+    still being built (a ``Future``, :func:`~.model.build_model`), is worked on in a thread beside
+    the folds' restorations and paper interpolations, which need none of it."""
+    if kriging is None:
+        return None
+    if isinstance(kriging, KrigingInterpolator) and kriging.summary is None:
+        result = kriging.held_out(groups)
+        return lambda: result
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rbc_held_out")
+    if isinstance(kriging, Future):
+        job = pool.submit(lambda: kriging.result().held_out(groups))
+    else:
+        job = pool.submit(kriging.held_out, groups)
+    pool.shutdown(wait=False)
+    return job.result
+
+
 def cross_validate(working: ArrayLike, destination: ArrayLike,
                    candidates: Sequence[str] = CANDIDATES, *, restoration: str = "iterative",
                    steps: int = 2, uncorrected_subset: Optional[Sequence[int]] = None,
                    corrected_subset: Optional[Sequence[int]] = None,
-                   kriging: Optional[KrigingInterpolator] = None,
+                   kriging: Union[None, KrigingInterpolator, Future] = None,
                    scheme: Optional[FoldScheme] = None) -> CrossValidation:
     """Held-out errors of each candidate (module docstring).
 
@@ -158,7 +179,9 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
     :param uncorrected_subset: indices the uncorrected registration is fitted to (None: all).
     :param corrected_subset: indices the corrected registration is fitted to (None: all).
     :param kriging: the kriging interpolator fitted to all fiducials (its hyper-parameters and
-        covariance); needed for the ``kriging`` candidate and for ``scale``.
+        covariance); needed for the ``kriging`` candidate and for ``scale``. Or a ``Future`` of
+        it (:func:`~.model.build_model` builds one above the exact threshold in a thread beside
+        the folds); when it fails with ValueError, kriging is unavailable with that reason.
     :param scheme: the folds; default :func:`fold_scheme`.
     :return: :class:`CrossValidation`; a candidate that fails (too few fiducials, degenerate
         geometry in a fold) is listed in ``unavailable`` with the reason.
@@ -177,8 +200,8 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
     if "kriging" in candidates and kriging is None:
         unavailable["kriging"] = "no kriging model"
     groups = fold_groups(x, scheme)
-    held_out = kriging.held_out(groups) if kriging is not None else None
-    scale = np.full(j, np.nan) if held_out is not None else None
+    held_out = _held_out(kriging, groups)
+    scale = np.full(j, np.nan) if kriging is not None else None
     errors = {c: np.full(j, np.nan) for c in candidates if c not in unavailable}
     corrected = [c for c in errors if c in INTERPOLATIONS]
     fast_u = None
@@ -186,11 +209,12 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
         fast_u = loo_rigid_errors(x, y)
         if fast_u is not None:
             errors[UNCORRECTED][:] = fast_u
+    kriging_folds = []                      # (fold, eps, R_c): held_out may still be running
+    reached = 0
     for f, held in enumerate(groups):
+        reached = f + 1
         kept = np.setdiff1d(np.arange(j), held)
         xk, yk, xs, ys = x[kept], y[kept], x[held], y[held]
-        if held_out is not None:
-            scale[held] = held_out[f][1]
         if UNCORRECTED in errors and fast_u is None:
             try:
                 reg = _fit(xk, yk, kept, uncorrected_subset)
@@ -207,17 +231,36 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
             unavailable.update({c: f"fold {f + 1}: {exc}" for c in corrected})
             corrected = []
             continue
-        for c in list(corrected):
+        if "kriging" in corrected:
+            kriging_folds.append((f, eps, reg_c))
+        if "paper" in corrected:
             try:
-                if c == "paper":
-                    eps_s = PaperInterpolator(xk, eps)(xs).correction
-                else:
-                    eps_s = held_out[f][0] @ eps
+                eps_s = PaperInterpolator(xk, eps)(xs).correction
             except (ValueError, np.linalg.LinAlgError) as exc:
-                unavailable[c] = f"fold {f + 1}: {exc}"
-                corrected.remove(c)
+                unavailable["paper"] = f"fold {f + 1}: {exc}"
+                corrected.remove("paper")
                 continue
-            errors[c][held] = np.linalg.norm(reg_c.apply(xs - eps_s) - ys, axis=1)
+            errors["paper"][held] = np.linalg.norm(reg_c.apply(xs - eps_s) - ys, axis=1)
+    predictors = None
+    if held_out is not None:
+        try:
+            predictors = held_out()
+        except ValueError as exc:          # a kriging model built in a thread could not be
+            unavailable["kriging"] = str(exc)
+            scale = None
+            kriging_folds = []
+    if predictors is not None:
+        for f in range(reached):
+            scale[groups[f]] = predictors[f][1]
+        for f, eps, reg_c in kriging_folds:
+            held = groups[f]
+            try:
+                eps_s = predictors[f][0] @ eps
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                unavailable["kriging"] = f"fold {f + 1}: {exc}"
+                break
+            errors["kriging"][held] = np.linalg.norm(reg_c.apply(x[held] - eps_s) - y[held],
+                                                     axis=1)
     for c in unavailable:
         errors.pop(c, None)
     for e in errors.values():

@@ -36,12 +36,18 @@ from .kriging_summary import DataSummary, HeldOutWeights, cholesky_blocked
 from .validation import as_point_pairs, as_points
 
 __all__ = ["EXACT_MAX_FIDUCIALS", "KrigingHyperparameters", "KrigingInterpolator",
-           "MarginalLikelihood", "fit_hyperparameters"]
+           "MarginalLikelihood", "fit_hyperparameters", "summarised"]
 
 #: Exact kriging up to this many fiducials; above it the posterior variance and the held-out
 #: predictions of cross-validation condition on a summary of the data (module docstring,
 #: :mod:`.kriging_summary`). Measured against the exact values in benchmarks/RESULTS.md.
 EXACT_MAX_FIDUCIALS = 2000
+
+
+def summarised(count: int) -> bool:
+    """Whether a kriging model of ``count`` fiducials conditions its variance on the summary
+    (above :data:`EXACT_MAX_FIDUCIALS`)."""
+    return count > EXACT_MAX_FIDUCIALS
 
 #: Target-fiducial covariance entries :meth:`KrigingInterpolator.__call__` holds at once
 #: (16 MB of float64 per array).
@@ -86,7 +92,7 @@ class KrigingInterpolator:
         k.flat[::j + 1] += noise
         #: The summary the variance conditions on above :data:`EXACT_MAX_FIDUCIALS`, else None.
         self.summary: Optional[DataSummary] = None
-        if j > EXACT_MAX_FIDUCIALS:
+        if summarised(j):
             low = cholesky_blocked(k)                   # in place, GIL-free matmul blocks
             self.chol = (low.T, False)
             self.summary = DataSummary(self.points, self._cov, low, noise,

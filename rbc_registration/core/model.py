@@ -14,8 +14,10 @@ target corrections::
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Mapping, Optional, Sequence, Union
+from functools import partial
+from typing import Callable, Mapping, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -26,7 +28,7 @@ from .constants import CANDIDATES, INTERPOLATIONS, UNCORRECTED, DecisionMode
 from .crossval import cross_validate
 from .decision import Decision, decide
 from .interpolation import PaperInterpolator
-from .kriging import KrigingHyperparameters, KrigingInterpolator
+from .kriging import KrigingHyperparameters, KrigingInterpolator, summarised
 from .noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
 from .registration import Registration, rigid_fit
 from .restoration import RestorationResult, restore_rigid_body
@@ -129,6 +131,16 @@ def _candidates(mode: DecisionMode, configured: str) -> tuple[str, ...]:
     return (UNCORRECTED, configured) if mode is DecisionMode.ON else (UNCORRECTED,)
 
 
+def _in_thread(build: Callable[[], KrigingInterpolator]) -> Future:
+    """``build()`` in a thread of its own: above the exact threshold the kriging model's fit
+    and factorisation (~3 s of mostly GIL-free numpy at J = 5,000) run beside the folds of the
+    cross-validation, which need it only for the kriging candidate's held-out predictions."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rbc_kriging")
+    job = pool.submit(build)
+    pool.shutdown(wait=False)
+    return job
+
+
 def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig = DEFAULT_CONFIG,
                 *, ids: Optional[Sequence[str]] = None,
                 working_repeats: Optional[Sequence[ArrayLike]] = None,
@@ -176,6 +188,7 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     interpolators: dict[str, Interpolator] = {}
     failed: dict[str, str] = {}
     hull = None                         # one hull test of the fiducials, shared (answers.py)
+    pending: Optional[Future] = None    # a large kriging model, built beside the folds
     for method in INTERPOLATIONS:
         if method != config.interpolation and method not in candidates:
             continue
@@ -183,19 +196,32 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
             if method == "paper":
                 interpolators[method] = PaperInterpolator(x, restoration.corrections, hull=hull)
             else:
-                interpolators[method] = KrigingInterpolator(
-                    x, restoration.corrections, sigma, stats.counts, kriging_hyperparameters,
-                    kriging_warm_start, hull=hull)
+                build = partial(KrigingInterpolator, x, restoration.corrections, sigma,
+                                stats.counts, kriging_hyperparameters, kriging_warm_start,
+                                hull=hull)
+                if summarised(j) and "kriging" in candidates:
+                    pending = _in_thread(build)
+                    continue
+                interpolators[method] = build()
             hull = interpolators[method].hull
         except ValueError as exc:
             if method == config.interpolation:
                 raise
             failed[method] = str(exc)
-    cv = cross_validate(x, y, [c for c in candidates if c == UNCORRECTED or c in interpolators],
+    cv = cross_validate(x, y, [c for c in candidates if c == UNCORRECTED or c in interpolators
+                               or (c == "kriging" and pending is not None)],
                         restoration=config.restoration, steps=config.steps,
                         uncorrected_subset=config.uncorrected_subset,
                         corrected_subset=config.corrected_subset,
-                        kriging=interpolators.get("kriging") if "kriging" in candidates else None)
+                        kriging=pending or (interpolators.get("kriging")
+                                            if "kriging" in candidates else None))
+    if pending is not None:
+        try:
+            interpolators["kriging"] = pending.result()
+        except ValueError as exc:
+            if config.interpolation == "kriging":
+                raise
+            failed["kriging"] = str(exc)
     cv = cv._replace(unavailable={**cv.unavailable, **failed})
     decision = decide(config.decision, cv, config.interpolation, assessment, config.rho_reject,
                       config.rho_apply)

@@ -7,7 +7,8 @@ import pytest
 
 from rbc_registration.core import kriging, kriging_summary
 from rbc_registration.core.config import ModelConfig
-from rbc_registration.core.crossval import FoldScheme, fold_groups
+from rbc_registration.core.constants import CANDIDATES
+from rbc_registration.core.crossval import FoldScheme, cross_validate, fold_groups
 from rbc_registration.core.gp_fit import KrigingHyperparameters, matern52
 from rbc_registration.core.kriging import KrigingInterpolator
 from rbc_registration.core.model import build_model
@@ -134,5 +135,10 @@ def test_a_large_model_cross_validates_and_decides_with_the_summary(monkeypatch)
     cv = model.decision.cross_validation
     assert np.all(np.isfinite(cv.errors["kriging"])) and np.all(cv.scale > 0)
     assert model.decision.method == "kriging"
+    # the model built in a thread beside the folds: the same held-out errors as given built
+    again = cross_validate(working, grid, kriging=model.interpolators["kriging"])
+    for c in CANDIDATES:
+        np.testing.assert_array_equal(again.errors[c], cv.errors[c])
+    np.testing.assert_array_equal(again.scale, cv.scale)
     answer = model.correct(grid[:5] + 0.01)
     assert np.all(np.isfinite(answer.tre_bound)) and np.all(answer.tre_bound > 0)
