@@ -85,8 +85,8 @@ class KrigingInterpolator:
             raise ValueError(f"sigma must be finite and >= 0, got {sigma}")
         self.inv_n = 1.0 / n
         self.hull = hull if hull is not None else HullTest(self.points)
-        self.hyper = hyperparameters or fit_hyperparameters(self.points, self.corrections, sigma,
-                                                            n, warm_start)
+        self.hyper = hyperparameters or fit_hyperparameters(
+            self.points, self.corrections, sigma, n, warm_start, gil_free=summarised(j))
         k = self._cov(cdist(self.points, self.points))
         noise = self._noise_var()
         k.flat[::j + 1] += noise
