@@ -307,7 +307,9 @@ def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
         bounds.append((math.log(1e-12), math.log(1e2)))
 
     def likelihood(idx: NDArray[np.intp]) -> MarginalLikelihood:
-        return MarginalLikelihood(x[idx], eps[idx], inv_n[idx], scale, noise2, gil_free)
+        # GIL-free pays only beyond the search's size (scipy's LAPACK holds it < 1 ms there)
+        return MarginalLikelihood(x[idx], eps[idx], inv_n[idx], scale, noise2,
+                                  gil_free and len(idx) > SEARCH_MAX_FIDUCIALS)
 
     fit_idx = _subsample(x, FIT_MAX_FIDUCIALS)
     search_idx = _subsample(x, SEARCH_MAX_FIDUCIALS)
