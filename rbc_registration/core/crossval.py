@@ -12,7 +12,8 @@ fold, everything the prediction uses is refitted on the kept fiducials only:
   the interpolation of the fold's own corrections to the held-out points (eq. 5-6).
 
 Kriging conditions the Gaussian process exactly on the kept fiducials' corrections (the closed-form
-GP prediction from the precision matrix, :meth:`KrigingInterpolator.held_out`), with the
+GP prediction from the precision matrix, :meth:`KrigingInterpolator.held_out`; above
+:data:`~.kriging.EXACT_MAX_FIDUCIALS` the summary's predictor, :mod:`.kriging_summary`), with the
 hyper-parameters of the fit to all fiducials. That is the only information that leaks from a
 held-out fiducial into its prediction: three scalars (s, l, sigma) fitted to J d correction values,
 on which one fiducial has an influence of order 1/J, and which enter the prediction smoothly (the
