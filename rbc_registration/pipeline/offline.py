@@ -131,8 +131,9 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings) -> Opti
         frames.append(("destination", dest, limit, "outlier_distance"))
     conflict = first_conflict(ids, frames)
     if conflict is not None:
-        raise EvaluationError(f"recorded targets: message {conflict.row} conflicts with the "
-                              f"earlier repeats of its id: {conflict.message}")
+        raise EvaluationError(f"recorded targets: target message {conflict.row + 1} of "
+                              f"{len(targets)} conflicts with the earlier repeats of its id: "
+                              f"{conflict.message}")
     unique, (working, truth) = mean_by_id(ids, work, dest)
     return Targets(unique, working, truth if np.all(np.isfinite(truth)) else None, "bag")
 

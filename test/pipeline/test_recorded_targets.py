@@ -26,7 +26,8 @@ def test_agreeing_repeats_are_averaged():
 @pytest.mark.parametrize("second, frame", [(((0.5, 0, 0), (1, 0, 0)), "working"),
                                            (((0, 0, 0), (1.02, 0, 0)), "destination")])
 def test_repeats_farther_than_outlier_distance_are_refused(second, frame):
-    with pytest.raises(EvaluationError, match=rf"message 2 conflicts .*target 'a': {frame} point "
-                                              r"is 0\.\d+ .*more than outlier_distance 0\.01"):
+    with pytest.raises(EvaluationError, match=rf"target message 3 of 3 conflicts .*target 'a': "
+                                              rf"{frame} point is 0\.\d+ .*more than "
+                                              r"outlier_distance 0\.01"):
         recorded_targets([pair("a", (0, 0, 0), (1, 0, 0)), pair("b", (1, 0, 0), (2, 0, 0)),
                           pair("a", *second)], SETTINGS)
