@@ -34,12 +34,12 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
                              pooled_median, target_noise)
 from .interpolation import HullTest
+from .repeats import typical_spacing
 from .validation import as_points, check_spread
 
 #: ``expected_with_all`` conditions on J + C points at once (one Cholesky factorisation,
@@ -169,16 +169,16 @@ def work_volume(points: ArrayLike, count: int = 400) -> NDArray[np.float64]:
 
 def unresolved_bias(fiducials: ArrayLike, error_model: ExpectedErrorModel) -> Optional[str]:
     """Why the error model cannot judge "enough", or None: its bias length scale is shorter than
-    the median nearest-neighbour spacing of the fiducials while the bias it sees is larger than
-    the noise. Fiducials that sparse cannot show how the bias varies between them (a correlation
-    shorter than the sampling is not identifiable), so the model calls the bias unlearnable and
-    every candidate gains little, though more fiducials would resolve it. Measured: A-like seed
-    34, 10 fiducials at a median spacing of 910 mm, length scale 98 mm: "enough" at 10 with 52x the
-    TRE of all fiducials (benchmarks/RESULTS.md, "Planner")."""
+    the median nearest-neighbour spacing of the fiducials (:func:`.repeats.typical_spacing`)
+    while the bias it sees is larger than the noise. Fiducials that sparse cannot show how the
+    bias varies between them (a correlation shorter than the sampling is not identifiable), so the
+    model calls the bias unlearnable and every candidate gains little, though more fiducials would
+    resolve it. Measured: A-like seed 34, 10 fiducials at a median spacing of 910 mm, length scale
+    98 mm: "enough" at 10 with 52x the TRE of all fiducials (benchmarks/RESULTS.md, "Planner")."""
     x = np.asarray(fiducials, dtype=np.float64)
     if len(x) < 2:
         return None
-    spacing = float(np.median(cKDTree(x).query(x, k=2)[0][:, 1]))
+    spacing = typical_spacing(x)
     bias = error_model.signal_std * math.sqrt(error_model.dimension)
     noise = math.sqrt(float(np.trace(error_model.noise_covariance)))
     if error_model.length_scale >= spacing or bias <= noise:
