@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from ..core.constants import DIMENSIONS
 from ..core.repeats import repeat_outlier, typical_spacing
 from ..core.validation import MAX_ABS_COORDINATE
-from ..pipeline.targets import first_conflict, mean_by_id
+from ..pipeline.targets import first_conflict, mean_by_id, rows_by_id
 
 PathLike = Union[str, Path]
 #: A repeat of one id farther than this fraction of the typical fiducial spacing from the mean of
@@ -158,7 +158,8 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
         w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
         t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes]
         groups.setdefault(fid, []).append((line, w, t))
-    limits = _repeat_limits(groups, outlier_distance)
+    limits = _repeat_limits(([g[0][1] for g in groups.values()],
+                             [g[0][2] for g in groups.values()]), outlier_distance)
     notes: list[str] = []
     work, dest = [], []
     for fid, group in groups.items():
@@ -168,17 +169,17 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
     return FiducialTable(tuple(groups), tuple(work), tuple(dest), d, tuple(notes))
 
 
-def _repeat_limits(groups: dict[str, list[tuple[int, list[float], list[float]]]],
+def _repeat_limits(first_rows: tuple[list[list[float]], list[list[float]]],
                    outlier_distance: Optional[float], kind: str = "fiducial"
                    ) -> tuple[tuple[float, str], ...]:
     """(limit, how it is named) for the working and the destination frame: ``outlier_distance``,
-    else :data:`CONFLICT_FRACTION` x the typical spacing of the ids' first rows (``kind``: what
-    the ids are, for the name)."""
+    else :data:`CONFLICT_FRACTION` x the typical spacing of the ids' first rows in that frame
+    (``first_rows``: working, destination; ``kind``: what the ids are, for the name)."""
     if outlier_distance is not None:
         return ((float(outlier_distance), "outlier_distance"),) * 2
     out = []
-    for k in (1, 2):
-        spacing = typical_spacing([g[0][k] for g in groups.values()])
+    for points in first_rows:
+        spacing = typical_spacing(points)
         out.append((CONFLICT_FRACTION * spacing,
                     f"{CONFLICT_FRACTION:g} x the {kind} spacing {spacing:.6g} ="))
     return tuple(out)
@@ -230,27 +231,25 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
     if partial and not has_truth:
         raise CsvError(f"{path}: truth columns incomplete: has {', '.join(partial)}, needs "
                        + ", ".join(f"d{a}" for a in axes))
-    groups: dict[str, list[tuple[int, list[float], list[float]]]] = {}
-    tids, lines, work, truth = [], [], [], []
+    tids, work, truth = [], [], []
     for line, row in enumerate(rows, start=2):
         tid = row.get("id") or ""
         if not tid:
             raise CsvError(f"{path}: row {line}: column id is empty")
-        w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
-        t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes] if has_truth else w
-        groups.setdefault(tid, []).append((line, w, t))
         tids.append(tid)
-        lines.append(line)
-        work.append(w)
-        truth.append(t)
-    (w_limit, w_name), (t_limit, t_name) = _repeat_limits(groups, outlier_distance, kind)
+        work.append([_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes])
+        truth.append([_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes]
+                     if has_truth else work[-1])
+    first = [index[0] for index in rows_by_id(tids).values()]
+    (w_limit, w_name), (t_limit, t_name) = _repeat_limits(
+        ([work[k] for k in first], [truth[k] for k in first]), outlier_distance, kind)
     frames = [("working", work, w_limit, w_name)]
     if has_truth:
         frames.append(("truth", truth, t_limit, t_name))
     conflict = first_conflict(tids, frames, kind)
     if conflict is not None:
-        raise CsvError(f"{path}: id {tids[conflict.row]!r} (first at row {lines[conflict.first]}) "
-                       f"has conflicting {conflict.frame} points: row {lines[conflict.row]}: "
+        raise CsvError(f"{path}: id {tids[conflict.row]!r} (first at row {conflict.first + 2}) "
+                       f"has conflicting {conflict.frame} points: row {conflict.row + 2}: "
                        f"{conflict.message}")
     ids, means = mean_by_id(tids, work, *([truth] if has_truth else []))
     return TargetTable(ids, means[0], means[1] if has_truth else None)

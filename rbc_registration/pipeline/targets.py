@@ -23,6 +23,14 @@ class Targets(NamedTuple):
     source: str
 
 
+def rows_by_id(ids: Sequence[str]) -> dict[str, list[int]]:
+    """The row indices of each id (one id per row), the ids in order of first appearance."""
+    rows: dict[str, list[int]] = {}
+    for k, key in enumerate(ids):
+        rows.setdefault(key, []).append(k)
+    return rows
+
+
 def mean_by_id(ids: Sequence[str], *columns: ArrayLike) -> tuple[tuple[str, ...],
                                                                   list[NDArray[np.float64]]]:
     """Average the rows of each id, in order of first appearance.
@@ -32,9 +40,7 @@ def mean_by_id(ids: Sequence[str], *columns: ArrayLike) -> tuple[tuple[str, ...]
     :return: the distinct ids and, per column, the (J, ...) means.
     :raises ValueError: when a column has another number of rows than ``ids``.
     """
-    rows: dict[str, list[int]] = {}
-    for k, key in enumerate(ids):
-        rows.setdefault(key, []).append(k)
+    rows = rows_by_id(ids)
     means = []
     for column in columns:
         values = np.asarray(column, dtype=np.float64)
@@ -69,9 +75,7 @@ def first_conflict(ids: Sequence[str], frames: Sequence[tuple[str, ArrayLike, fl
     :param kind: what the ids are, for the message (``target``, ``candidate``).
     :return: :class:`Conflict`, or None when every id's rows agree.
     """
-    rows: dict[str, list[int]] = {}
-    for k, key in enumerate(ids):
-        rows.setdefault(key, []).append(k)
+    rows = rows_by_id(ids)
     for name, points, limit, limit_name in frames:
         values = np.asarray(points, dtype=np.float64)
         for key, index in rows.items():
