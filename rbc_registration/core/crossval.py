@@ -29,7 +29,7 @@ kept fiducials.
 from __future__ import annotations
 
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Callable, Mapping, NamedTuple, Optional, Sequence, Union
+from typing import Callable, Mapping, NamedTuple, Optional, Sequence, TypeVar, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,6 +40,8 @@ from .kriging import KrigingInterpolator
 from .registration import Registration, rigid_fit
 from .restoration import restore_rigid_body
 from .validation import as_point_pairs
+
+T = TypeVar("T")
 
 #: Leave-one-out up to this many fiducials (J folds: at J = 277 in 2D about a second for all
 #: candidates); above it, :data:`K_FOLDS` folds.
@@ -144,6 +146,14 @@ def loo_rigid_errors(working: NDArray[np.float64], destination: NDArray[np.float
     return np.linalg.norm(pred - y, axis=1)
 
 
+def in_thread(work: Callable[[], T], name: str) -> "Future[T]":
+    """``work()`` started in a thread of its own (named ``name``); its ``Future``."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=name)
+    job = pool.submit(work)
+    pool.shutdown(wait=False)
+    return job
+
+
 def _held_out(kriging: Union[None, KrigingInterpolator, Future],
               groups: Sequence[NDArray[np.intp]]) -> Optional[Callable[[], list]]:
     """``kriging.held_out(groups)`` as a call that returns it. A kriging model above the exact
@@ -155,13 +165,8 @@ def _held_out(kriging: Union[None, KrigingInterpolator, Future],
     if isinstance(kriging, KrigingInterpolator) and kriging.summary is None:
         result = kriging.held_out(groups)
         return lambda: result
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rbc_held_out")
-    if isinstance(kriging, Future):
-        job = pool.submit(lambda: kriging.result().held_out(groups))
-    else:
-        job = pool.submit(kriging.held_out, groups)
-    pool.shutdown(wait=False)
-    return job.result
+    model = kriging.result if isinstance(kriging, Future) else lambda: kriging
+    return in_thread(lambda: model().held_out(groups), "rbc_held_out").result
 
 
 def cross_validate(working: ArrayLike, destination: ArrayLike,

@@ -14,10 +14,10 @@ target corrections::
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Callable, Mapping, Optional, Sequence, Union
+from typing import Mapping, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from .answers import TargetAnswer, TargetCorrections, TargetEvaluation
 from .config import ModelConfig
 from .constants import CANDIDATES, INTERPOLATIONS, UNCORRECTED, DecisionMode
-from .crossval import cross_validate
+from .crossval import cross_validate, in_thread
 from .decision import Decision, decide
 from .interpolation import PaperInterpolator
 from .kriging import KrigingHyperparameters, KrigingInterpolator, summarised
@@ -131,16 +131,6 @@ def _candidates(mode: DecisionMode, configured: str) -> tuple[str, ...]:
     return (UNCORRECTED, configured) if mode is DecisionMode.ON else (UNCORRECTED,)
 
 
-def _in_thread(build: Callable[[], KrigingInterpolator]) -> Future:
-    """``build()`` in a thread of its own: above the exact threshold the kriging model's fit
-    and factorisation (~3 s of mostly GIL-free numpy at J = 5,000) run beside the folds of the
-    cross-validation, which need it only for the kriging candidate's held-out predictions."""
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rbc_kriging")
-    job = pool.submit(build)
-    pool.shutdown(wait=False)
-    return job
-
-
 def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig = DEFAULT_CONFIG,
                 *, ids: Optional[Sequence[str]] = None,
                 working_repeats: Optional[Sequence[ArrayLike]] = None,
@@ -200,7 +190,9 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
                                 stats.counts, kriging_hyperparameters, kriging_warm_start,
                                 hull=hull)
                 if summarised(j) and "kriging" in candidates:
-                    pending = _in_thread(build)
+                    # the fit and factor (~3 s of mostly GIL-free numpy at J = 5,000) beside the
+                    # folds, which need the model only for kriging's held-out predictions
+                    pending = in_thread(build, "rbc_kriging")
                     continue
                 interpolators[method] = build()
             hull = interpolators[method].hull
