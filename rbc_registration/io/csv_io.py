@@ -67,14 +67,18 @@ class TargetTable:
     destination: Optional[NDArray[np.float64]]
 
 
-def _read_rows(path: PathLike, required: list[str]) -> tuple[list[str], list[dict[str, str]]]:
+def _read_rows(path: PathLike, required: list[str]
+               ) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
+    """The header and the data rows, each with its line in the file (the header is line 1;
+    blank lines, which ``csv.DictReader`` skips, still count), for the messages' ``row N``."""
     p = Path(path)
     try:
         with p.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             header = [h.strip() for h in (reader.fieldnames or [])]
-            rows = [{(k or "").strip(): (v or "").strip() if isinstance(v, str) else v
-                     for k, v in row.items()} for row in reader]
+            rows = [(reader.line_num, {(k or "").strip(): (v or "").strip()
+                                       if isinstance(v, str) else v for k, v in row.items()})
+                    for row in reader]
     except FileNotFoundError:
         raise CsvError(f"{p}: no such file") from None
     except (UnicodeDecodeError, csv.Error) as exc:
@@ -85,7 +89,7 @@ def _read_rows(path: PathLike, required: list[str]) -> tuple[list[str], list[dic
     if twice:
         raise CsvError(f"{p}: column(s) {', '.join(twice)} appear more than once in the header "
                        f"{','.join(header)}")
-    for line, row in enumerate(rows, start=2):
+    for line, row in rows:
         rest = row.get("")                 # csv.DictReader's list of fields beyond the header
         extra = [v for v in rest if v and v.strip()] if isinstance(rest, list) else []
         if extra:
@@ -151,7 +155,7 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
     d = _dimension(path, header, ["w", "d"], dim)
     axes = "xyz"[:d]
     groups: dict[str, list[tuple[int, list[float], list[float]]]] = {}
-    for line, row in enumerate(rows, start=2):
+    for line, row in rows:
         fid = row.get("id") or ""
         if not fid:
             raise CsvError(f"{path}: row {line}: column id is empty")
@@ -232,7 +236,7 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
         raise CsvError(f"{path}: truth columns incomplete: has {', '.join(partial)}, needs "
                        + ", ".join(f"d{a}" for a in axes))
     tids, work, truth = [], [], []
-    for line, row in enumerate(rows, start=2):
+    for line, row in rows:
         tid = row.get("id") or ""
         if not tid:
             raise CsvError(f"{path}: row {line}: column id is empty")
@@ -248,8 +252,10 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
         frames.append(("truth", truth, t_limit, t_name))
     conflict = first_conflict(tids, frames, kind)
     if conflict is not None:
-        raise CsvError(f"{path}: id {tids[conflict.row]!r} (first at row {conflict.first + 2}) "
-                       f"has conflicting {conflict.frame} points: row {conflict.row + 2}: "
+        lines = [line for line, _ in rows]
+        raise CsvError(f"{path}: id {tids[conflict.row]!r} (first at row "
+                       f"{lines[conflict.first]}) has conflicting {conflict.frame} points: row "
+                       f"{lines[conflict.row]}: "
                        f"{conflict.message}")
     ids, means = mean_by_id(tids, work, *([truth] if has_truth else []))
     return TargetTable(ids, means[0], means[1] if has_truth else None)

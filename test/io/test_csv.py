@@ -189,3 +189,16 @@ def test_ambiguous_columns_are_refused(tmp_path, text, message):
 def test_empty_trailing_fields_are_not_extra(tmp_path):
     t = read_fiducials(write(tmp_path, GOOD.replace("d,0,0,1,10,0,1", "d,0,0,1,10,0,1,,")))
     assert t.ids == ("a", "b", "c", "d")
+
+
+@pytest.mark.parametrize("read, text, message", [
+    (read_fiducials, "id,wx,wy,dx,dy\na,0,0,0,0\n\nb,1,0,1,0\n\n\nc,0,1,x,1\n",
+     "row 7: column dx is not a number: 'x'"),
+    (read_fiducials, "id,wx,wy,dx,dy\n\na,0,0,0,0,9\n", "row 3: 6 fields"),
+    (lambda p: read_targets(p, 2), "id,wx,wy\na,0,0\n\nb,100,0\n\na,50,50\n",
+     "id 'a' (first at row 2) has conflicting working points: row 6:"),
+], ids=["number", "extra field", "target conflict"])
+def test_row_numbers_are_lines_of_the_file_after_blank_lines(tmp_path, read, text, message):
+    # csv.DictReader skips blank lines; a message still names the line an editor shows
+    with pytest.raises(CsvError, match=re.escape(message)):
+        read(write(tmp_path, text))
