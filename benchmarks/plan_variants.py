@@ -21,7 +21,10 @@ point). Every variant keeps the decision-aware first suggestion of the product
   restricted profile likelihood (hyper-parameter uncertainty);
 - ``mean squared``: ranked by the mean expected squared TRE instead of the pooled median;
 - ``space-filling ties``: among candidates within 25 % of the best gain, the farthest from the
-  fiducials.
+  fiducials;
+- ``space-filling unless 1.5x`` / ``2x``: the space-filling candidate (the farthest from the
+  fiducials, the ``grid`` order's next) unless the best candidate is expected to gain at least
+  1.5 (2) times as much as it.
 
 Prints, per variant, the mean over seeds and counts 11..stop of (variant - grid), the counts where
 the variant's mean is above grid's with the paired standard error, and the same for random.
@@ -54,7 +57,8 @@ from rbc_registration.core.model_planner import (decisive_candidate,  # noqa: E4
                                                  error_model_from, held_back_by_decision,
                                                  plan_from_model)
 
-VARIANTS = ("planner", "oracle", "reml", "reml mixture", "mean squared", "space-filling ties")
+VARIANTS = ("planner", "oracle", "reml", "reml mixture", "mean squared", "space-filling ties",
+            "space-filling unless 1.5x", "space-filling unless 2x")
 
 
 def restricted_nll(x, eps, length, s2, noise2) -> float:
@@ -99,6 +103,16 @@ def expected_after(x, c, pts, components, axis_std) -> np.ndarray:
 
 
 def next_pick(variant, cell, m, c, em_all) -> int:
+    if variant.startswith("space-filling unless"):
+        factor = float(variant.split()[-1].rstrip("x"))
+        p = plan_from_model(m, c, cell.tw)
+        k = int(p.sequence[0])
+        if k == int(p.ranking[0]):          # not the decisive first suggestion
+            far = int(np.argmax(np.min(np.linalg.norm(c[:, None, :] - m.working[None], axis=2),
+                                       axis=1)))
+            if p.gains[k] < factor * p.gains[far]:
+                k = far
+        return k
     if variant in ("planner", "oracle", "space-filling ties"):
         p = plan_from_model(m, c, cell.tw, error_model=em_all if variant == "oracle" else None)
         k = p.sequence[0]
@@ -124,13 +138,13 @@ def next_pick(variant, cell, m, c, em_all) -> int:
     return int(np.argmin(pooled_median(expected_after(m.working, c, cell.tw, comps, axis_std), d)))
 
 
-def run_seed(name: str, seed: int, stop: int) -> dict:
+def run_seed(name: str, seed: int, stop: int, variants=VARIANTS) -> dict:
     cell = Cell(name, seed)
     n = len(cell.x)
     perm = [int(k) for k in np.random.default_rng([seed, 13]).permutation(n)]
     em_all = error_model_from(cell.model(np.arange(n)))
     out = {}
-    for variant in VARIANTS:
+    for variant in variants:
         chosen, tre = list(perm[:10]), []
         while True:
             m = cell.model(chosen)
@@ -150,7 +164,7 @@ def report(runs: list[dict], stop: int) -> list[str]:
     grid = np.array([r["grid"] for r in runs])
     lines = [f"| variant | mean (variant - grid), counts 11-{stop} (mm) | counts above grid "
              "(paired difference ± SE, mm) |", "|---|---|---|"]
-    for v in VARIANTS + ("random",):
+    for v in [v for v in VARIANTS if v in runs[0]] + ["random"]:
         diff = np.array([r[v] for r in runs]) - grid
         m, se = diff.mean(axis=0), diff.std(axis=0, ddof=1) / math.sqrt(len(runs))
         above = [f"{10 + i} (+{m[i]:.4f} ± {se[i]:.4f})" for i in range(1, len(m)) if m[i] > 0]
@@ -165,15 +179,20 @@ def main(argv=None) -> int:
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--stop", type=int, default=30)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--variants", default=",".join(VARIANTS),
+                    help="comma-separated, among: " + ", ".join(VARIANTS))
     ap.add_argument("--load", default=None, help="report a --json file instead of running")
     args = ap.parse_args(argv)
+    unknown = set(args.variants.split(",")) - set(VARIANTS)
+    if unknown:
+        ap.error(f"unknown variants {sorted(unknown)}; choose among {', '.join(VARIANTS)}")
     if args.load:
         with open(args.load) as f:
             runs = json.load(f)
     else:
         runs = []
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            runs.append(run_seed(args.cell, seed, args.stop))
+            runs.append(run_seed(args.cell, seed, args.stop, args.variants.split(",")))
             print(f"seed {seed} done", file=sys.stderr, flush=True)
             if args.json:
                 with open(args.json, "w") as f:
