@@ -12,7 +12,7 @@
   K = 10,000 targets per call against a floor in the same run, ``cKDTree.query(targets, k=8)`` on
   the same fiducials (batched, same K), alternating, min and median per target and their ratios
   (wall clock and thread CPU time); the first two calls after a build are shown apart (2D: the
-  second prepares the grid cells that targets fell in twice).
+  grid cells are prepared once 8 targets fell in them, so calls 1-7 take the staged path).
 - large J (``--large``): iterative for J up to 10,000 and closed-form up to 100,000.
 - one target correction in process (paper and kriging); ``--one-target``: only this table.
 
@@ -209,7 +209,7 @@ def batch_table(repeat: int, k: int = 10_000) -> list[str]:
         lo, hi = x.min(axis=0), x.max(axis=0)
         targets = lo + (hi - lo) * rng.uniform(size=(k, d))
         tree = cKDTree(model.interpolator.points)
-        # 2D: the second call prepares the grid cells that targets fell in twice.
+        # 2D: calls 1-7 take the staged path, the 8th prepares the grid cells (PREPARE_AFTER).
         cold = [seconds(lambda: model.correct(targets)) for _ in range(2)]
         wall, cpu = alternate({"correct": lambda: model.correct(targets),
                                "floor": lambda: tree.query(targets, k=8)}, repeat)

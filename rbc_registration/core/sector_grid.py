@@ -18,12 +18,15 @@ target in C:
 Targets outside the grid, in cells where a list would be long, on a fiducial, with two fiducials at
 exactly the same distance in one sector (the rule then depends on the order of the neighbour
 query), with a fiducial within 1e-9 of a sector boundary, or with an uncertain winner take the
-general path, :func:`sector_weights`. Every float that enters a weight (distance, sector) is
-computed as the general path computes it, so the weights are identical, not just close.
+general path, :func:`~.sectors.staged_sector_weights` (the rule from smaller neighbour queries
+first, the same weights as :func:`~.sectors.sector_weights`). Every float that enters a weight
+(distance, sector) is computed as the general path computes it, so the weights are identical,
+not just close.
 
-A cell is prepared the second time targets fall in it (in one batch or across batches: preparing
-a cell costs about as much as 3 targets on the general path) and kept: targets that come back, as a
-cell's holes do, take the grid path from then on.
+A cell is prepared when :data:`PREPARE_AFTER` targets have fallen in it (in one batch or across
+batches: preparing a cell costs about as much as 10 targets on the staged path) and kept: targets
+that come back, as a cell's holes do, take the grid path from their 8th call on; targets new in
+every call mostly take the staged path.
 """
 
 from __future__ import annotations
@@ -36,9 +39,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from .sectors import (AMBIGUOUS, CHUNK, SECTOR_CANDIDATES, SECTORS, on_fiducial_tolerance,
-                      sector_weights)
+from .sectors import (AMBIGUOUS, CHUNK, SECTOR_CANDIDATES, SECTORS, EmptySectors,
+                      on_fiducial_tolerance, staged_sector_weights)
 
+#: A cell is prepared when this many targets have fallen in it, in one batch or across batches:
+#: preparing one costs about as much as 10 targets on the staged path (benchmarks/RESULTS.md,
+#: "Target corrections, 2D, new targets in every call").
+PREPARE_AFTER = 8
 #: Batches smaller than this take the general path (the grid pays off from a few dozen targets).
 GRID_MIN_TARGETS = 32
 #: Fiducials kept per cell and sector at most; a cell needing more is left to the general path.
@@ -51,7 +58,7 @@ MIN_CELLS, MAX_CELLS = 4096, 1 << 22
 
 
 class SectorIndex:
-    """:func:`sector_weights` for batches, exactly, from a grid of prepared cells (module
+    """:func:`~.sectors.sector_weights` for batches, exactly, from a grid of prepared cells (module
     docstring). Safe to share between threads: a cell is at worst prepared twice."""
 
     def __init__(self, points: NDArray[np.float64], tree: cKDTree) -> None:
@@ -73,7 +80,7 @@ class SectorIndex:
         # yet). Writers hold the lock; readers read _slot first, then _cells, which is replaced
         # whole, so any row a reader finds in _slot is in the arrays it then reads.
         self._slot = np.full(int(np.prod(self.n)), -1, dtype=np.int32)
-        self._hits = np.zeros(len(self._slot), dtype=np.uint8)    # targets seen, up to 2
+        self._hits = np.zeros(len(self._slot), dtype=np.uint8)    # targets seen, capped
         self._index = np.int16 if len(points) + SECTORS <= np.iinfo(np.int16).max else np.int32
         self._cells = _Cells(np.empty((0, SECTORS, MAX_PER_SECTOR), dtype=self._index),
                              np.empty(0, dtype=np.intp), np.empty(0, dtype=bool), np.empty(0))
@@ -86,6 +93,7 @@ class SectorIndex:
         self._padded = np.vstack([points, behind])
         self._px, self._py = self._padded[:, 0].copy(), self._padded[:, 1].copy()
         self._on = on_fiducial_tolerance(points)
+        self._empty = EmptySectors(points)
 
     def _cells_of(self, targets: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
         cell = np.floor((targets - self.lo) / self.h)
@@ -177,18 +185,18 @@ class SectorIndex:
                       np.maximum(1, count.max(axis=1)), safe, r65 - self.rho - self.tol)
 
     def weights(self, targets: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """Same as :func:`sector_weights` (``targets`` validated, (K, 2))."""
+        """Same as :func:`~.sectors.sector_weights` (``targets`` validated, (K, 2))."""
         cid, inside = self._cells_of(targets)
         slot = self._slot[cid]
         missing = inside & (slot < 0)
         if missing.any():
-            # A cell is prepared the second time targets fall in it (this batch or an earlier
-            # one): preparing costs more than the general path for a single target.
+            # A cell is prepared once PREPARE_AFTER targets fell in it (this batch or earlier
+            # ones): preparing costs more than the staged path for a few targets.
             ids, hits = np.unique(cid[missing], return_counts=True)
             seen = self._hits[ids] + hits
-            self._hits[ids] = np.minimum(seen, 2)
-            if (seen >= 2).any():
-                self._prepare(ids[seen >= 2])
+            self._hits[ids] = np.minimum(seen, PREPARE_AFTER)
+            if (seen >= PREPARE_AFTER).any():
+                self._prepare(ids[seen >= PREPARE_AFTER])
                 slot = self._slot[cid]
         cells = self._cells                       # after _slot: holds every row slot names
         fast = np.flatnonzero(inside & (slot >= 0))
@@ -202,7 +210,8 @@ class SectorIndex:
             general[fast[unsure]] = True
         slow = np.flatnonzero(general)
         if slow.size:
-            idx[slow], w[slow] = sector_weights(self.tree, self.points, targets[slow])
+            idx[slow], w[slow] = staged_sector_weights(self.tree, self.points, self._empty,
+                                                       targets[slow])
         return idx, w
 
     def _fast(self, t: NDArray[np.float64], row: NDArray[np.intp], cells: "_Cells"

@@ -6,8 +6,18 @@ sector the nearest fiducial among the :data:`SECTOR_CANDIDATES` nearest to T is 
 inverse distance (a target on a fiducial takes that fiducial alone). :func:`sector_weights` is the
 rule as stated, from a k-nearest-neighbour query of k = :data:`SECTOR_CANDIDATES`.
 
+:func:`staged_sector_weights` gives exactly the same weights for a batch from smaller queries
+first (:data:`STAGES`): a sector's nearest fiducial among the k nearest is its nearest among the
+64 (a closer one would be among the k, and the 64 include the k), so it is settled unless
+another fiducial of the sector is at the same distance (among the k, or beyond them when the
+winner is as far as the k-th: the rule then depends on the order of the neighbour query); a
+sector that holds no fiducial at all (:class:`EmptySectors`) is empty whatever the cap. Only
+targets with a sector settled by neither take the next query, and the last is the rule itself;
+so does a target on a fiducial.
+
 :class:`.sector_grid.SectorIndex` gives exactly the same weights for most targets of a batch
-at a fraction of the cost (the grid path; its module docstring says how).
+at a fraction of the cost (the grid path; its module docstring says how), and the staged path for
+the others.
 """
 
 from __future__ import annotations
@@ -25,6 +35,9 @@ SECTORS = 8
 CHUNK = 4096
 #: A direction this close (relative) to a sector boundary is classified with atan2 itself.
 AMBIGUOUS = 1e-9
+#: Neighbours queried by :func:`staged_sector_weights` before the rule's own query (most
+#: targets inside a cell are settled by the first).
+STAGES = (16, 32)
 _TAN8 = math.tan(math.pi / 8)
 # Sector by (kind, dx > 0, dy > 0); kind 0: within 22.5 deg of the x axis, 1: of the y axis,
 # 2: diagonal.
@@ -84,3 +97,97 @@ def sector_weights(tree: cKDTree, points: NDArray[np.float64], targets: NDArray[
     idx[on] = cand[on, :1]
     w[on] = np.eye(SECTORS)[0]
     return idx, w / w.sum(axis=1, keepdims=True)
+
+
+# Boundary directions of each sector s: from s pi/4 - pi/8 (included) to s pi/4 + pi/8.
+_LOW = np.arange(SECTORS) * (np.pi / 4) - np.pi / 8
+_LOW_X, _LOW_Y = np.cos(_LOW), np.sin(_LOW)
+_HIGH_X, _HIGH_Y = np.cos(_LOW + np.pi / 4), np.sin(_LOW + np.pi / 4)
+
+
+class EmptySectors:
+    """Which sectors around a target hold no fiducial at all, certainly.
+
+    F lies in sector s of T when the direction F - T is counter-clockwise of the sector's lower
+    boundary and clockwise of its upper one: a(F) >= a(T) and b(F) < b(T), with a, b the cross
+    products of a point with the two boundary directions (one pair per sector). So sector s of T
+    is empty when the smallest b over the fiducials with a >= a(T) is not below b(T): a binary
+    search in the fiducials sorted by a, and a suffix minimum of b. Both tests are widened by a
+    margin of 1e-9 of the cell's scale, far above the rounding of ``sector_of``, so a sector called
+    empty is empty for the formula as well.
+    """
+
+    def __init__(self, points: NDArray[np.float64]) -> None:
+        """:param points: the fiducials (J, 2)."""
+        self.margin = 1e-9 * float(np.abs(points).max() + np.ptp(points, axis=0).max())
+        self._a, self._min_b = [], []
+        for s in range(SECTORS):
+            a = _LOW_X[s] * points[:, 1] - _LOW_Y[s] * points[:, 0]
+            b = _HIGH_X[s] * points[:, 1] - _HIGH_Y[s] * points[:, 0]
+            order = np.argsort(a)
+            self._a.append(a[order])
+            self._min_b.append(np.append(np.minimum.accumulate(b[order][::-1])[::-1], np.inf))
+
+    def __call__(self, targets: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """(K, 8): sector s of target k holds no fiducial."""
+        out = np.empty((len(targets), SECTORS), dtype=bool)
+        for s in range(SECTORS):
+            a = _LOW_X[s] * targets[:, 1] - _LOW_Y[s] * targets[:, 0]
+            b = _HIGH_X[s] * targets[:, 1] - _HIGH_Y[s] * targets[:, 0]
+            first = np.searchsorted(self._a[s], a - self.margin, side="left")
+            out[:, s] = self._min_b[s][first] >= b + self.margin
+        return out
+
+
+def staged_sector_weights(tree: cKDTree, points: NDArray[np.float64], empty: EmptySectors,
+                          targets: NDArray[np.float64]
+                          ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """:func:`sector_weights`, bit for bit, from the queries of :data:`STAGES` first (module
+    docstring); ``empty``: the :class:`EmptySectors` of ``points``."""
+    if len(targets) > 4 * CHUNK:        # bounded temporaries: (K, 32) per chunk
+        parts = [staged_sector_weights(tree, points, empty, targets[a:a + 4 * CHUNK])
+                 for a in range(0, len(targets), 4 * CHUNK)]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    idx = np.empty((len(targets), SECTORS), dtype=np.intp)
+    w = np.empty((len(targets), SECTORS))
+    left = np.arange(len(targets))
+    cap = min(SECTOR_CANDIDATES, len(points))
+    none = empty(targets) if STAGES[0] < cap else None
+    for k in STAGES:
+        if k >= cap or not left.size:
+            break
+        done, idx_k, w_k = _settled(tree, points, none[left], targets[left], k)
+        idx[left[done]], w[left[done]] = idx_k, w_k
+        left = left[~done]
+    if left.size:
+        idx[left], w[left] = sector_weights(tree, points, targets[left])
+    return idx, w
+
+
+def _settled(tree: cKDTree, points: NDArray[np.float64], empty: NDArray[np.bool_],
+             targets: NDArray[np.float64], k: int
+             ) -> tuple[NDArray[np.bool_], NDArray[np.intp], NDArray[np.float64]]:
+    """Which targets the k nearest fiducials settle, and their indices and weights (``empty``:
+    (K, 8) the sectors :class:`EmptySectors` found empty)."""
+    n = len(targets)
+    dist, cand = tree.query(targets, k=k)
+    delta = points[cand] - targets[:, None, :]
+    sector = sector_of(delta[..., 0], delta[..., 1])
+    rows = np.arange(n)
+    first = np.full((n, SECTORS), k, dtype=np.intp)
+    for col in range(k - 1, -1, -1):          # the nearest candidate of each sector
+        first[rows, sector[:, col]] = col
+    filled = first < k
+    pick = np.minimum(first, k - 1)
+    best = np.where(filled, dist[rows[:, None], pick], np.inf)
+    # Settled: every sector filled by a winner closer than the k-th neighbour (no tie beyond
+    # the k), or empty; no other candidate of a winner's sector at its distance; not on a
+    # fiducial.
+    done = (filled & (best < dist[:, -1:]) | ~filled & empty).all(axis=1)
+    done &= (dist == best[rows[:, None], sector]).sum(axis=1) == filled.sum(axis=1)
+    done &= dist[:, 0] > on_fiducial_tolerance(points)
+    rows = np.flatnonzero(done)
+    chosen = cand[rows[:, None], pick[rows]]
+    idx = np.where(filled[rows], chosen, cand[rows, :1])
+    w = np.where(filled[rows], 1.0 / np.maximum(best[rows], 1e-300), 0.0)
+    return done, idx, w / w.sum(axis=1, keepdims=True)

@@ -39,7 +39,7 @@ def assert_same_weights(points, targets):
     ip = PaperInterpolator(points, eps)
     ref_idx, ref_w = reference_sectors(points, targets)
     used = ref_w > 0
-    for _ in range(2):               # the second call prepares the cells hit twice and uses them
+    for _ in range(sector_grid.PREPARE_AFTER + 1):   # the cells are prepared, then used
         idx, w, _ = ip.weights(targets)
         np.testing.assert_array_equal(w, ref_w)
         np.testing.assert_array_equal(idx[used], ref_idx[used])
@@ -126,6 +126,49 @@ def test_property_grid_path_equals_reference(j, seed, aspect, scale):
     assert_same_weights(pts, spread_targets(pts, 400, rng, margin=0.3))
 
 
+@pytest.mark.parametrize("case", ["uniform", "grid", "boundary", "few", "under-32"])
+def test_staged_path_equals_reference(case, monkeypatch):
+    """The staged path alone (smaller queries first, :class:`EmptySectors`): bit for bit the
+    reference, with most targets settled before the rule's own query."""
+    rng = np.random.default_rng(len(case))
+    pts = {"uniform": lambda: rng.uniform(0, 3.0, (1000, 2)),
+           "grid": lambda: grid(17, 21), "boundary": lambda: rng.uniform(0, 1, (200, 2)),
+           "few": lambda: rng.uniform(-1, 1, (12, 2)),
+           "under-32": lambda: rng.uniform(-1, 1, (25, 2))}[case]()
+    if case == "boundary":           # fiducials seen exactly along sector boundaries
+        ang = np.pi / 8 + np.pi / 4 * rng.integers(0, 8, 1500)
+        r = rng.uniform(0.01, 0.2, 1500)
+        targets = pts[rng.integers(0, 200, 1500)] - r[:, None] * np.c_[np.cos(ang), np.sin(ang)]
+    elif case == "grid":             # holes, midpoints, cell centres, near-holes and random
+        targets = np.concatenate([pts[::7], pts[:-1:5] + [12.5, 0.0], pts[:-1:3] + [12.5, 12.5],
+                                  pts[::11] + [0.0, 1e-13], spread_targets(pts, 2000, rng)])
+    else:
+        targets = spread_targets(pts, 3000, rng)
+    fallback = []
+    rule = sectors.sector_weights
+    monkeypatch.setattr(sectors, "sector_weights",
+                        lambda tree, p, t: (fallback.append(len(t)), rule(tree, p, t))[1])
+    idx, w = sectors.staged_sector_weights(cKDTree(pts), pts, sectors.EmptySectors(pts), targets)
+    ref_idx, ref_w = reference_sectors(pts, targets)
+    np.testing.assert_array_equal(w, ref_w)
+    np.testing.assert_array_equal(idx[ref_w > 0], ref_idx[ref_w > 0])
+    if len(pts) > sectors.STAGES[0]:
+        assert sum(fallback) < 0.5 * len(targets)           # the stages did most of the work
+
+
+def test_empty_sectors_are_empty_and_found():
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(0, 1, (300, 2))
+    targets = spread_targets(pts, 2000, rng, margin=0.5)
+    empty = sectors.EmptySectors(pts)(targets)
+    delta = pts[None, :, :] - targets[:, None, :]
+    holds = np.zeros_like(empty)
+    for s in range(8):
+        holds[:, s] = (sectors.sector_of(delta[..., 0], delta[..., 1]) == s).any(axis=1)
+    assert not (empty & holds).any()                        # never a sector that holds one
+    assert (empty == ~holds).mean() > 0.99                  # and (nearly) every empty one
+
+
 def test_sector_of_is_the_formula():
     rng = np.random.default_rng(5)
     ang = np.concatenate([rng.uniform(-np.pi, np.pi, 20000),
@@ -145,9 +188,12 @@ def test_grid_cells_are_prepared_once_and_kept():
     pts = rng.uniform(0, 1, (100, 2))
     index = sector_grid.SectorIndex(pts, cKDTree(pts))
     t = spread_targets(pts, 200, rng, margin=0.0)
+    index.weights(np.repeat(t[:3], sector_grid.PREPARE_AFTER, axis=0))
+    once = index._used                    # the cells of 3 targets, each hit 8 times at once
+    for _ in range(sector_grid.PREPARE_AFTER - 1):
+        index.weights(t)
+    assert index._used == once            # no other cell hit 8 times yet
     index.weights(t)
-    once = index._used                    # only cells two targets fell in
+    prepared = index._used                # every cell hit, now 8 times
     index.weights(t)
-    prepared = index._used                # every cell hit, now twice
-    index.weights(t)
-    assert once < prepared and index._used == prepared
+    assert 0 < once < prepared and index._used == prepared
