@@ -13,6 +13,9 @@
   the same fiducials (batched, same K), alternating, min and median per target and their ratios
   (wall clock and thread CPU time); the first two calls after a build are shown apart (2D: the
   grid cells are prepared once 8 targets fell in them, so calls 1-7 take the staged path).
+- ``--fresh``: 2D ``correct`` of 10,000 new random targets in every call, batch by batch;
+  ``--calls``: of the same targets call after call (CPU time per call, then the ratio); compare
+  trees with ``PYTHONPATH=<tree>``, alternating.
 - large J (``--large``): iterative for J up to 10,000 and closed-form up to 100,000.
 - one target correction in process (paper and kriging); ``--one-target``: only this table.
 
@@ -248,6 +251,34 @@ def fresh_table(batches: int = 12, k: int = 10_000) -> list[str]:
     return rows
 
 
+def calls_table(calls: int = 10, k: int = 10_000) -> list[str]:
+    """2D ``correct_targets`` of the same targets call after call (a new model per cell): CPU
+    time per target of each of the first calls (the grid cells are prepared on the
+    ``PREPARE_AFTER``-th), then the ratio to the k = 8 query over 20 more calls."""
+    rows = ["| cell | J | " + " | ".join(f"call {c}" for c in range(1, calls + 1))
+            + " | then: ratio to the k = 8 query, min / median |",
+            "|---|---|" + "---|" * (calls + 1)]
+    for name, x, y in [("grid RA-like", *grid_cell(2)), ("random", *cell(277, 2)),
+                       ("random", *cell(1000, 2))]:
+        model = build_model(x, y, ModelConfig(dimension=2, sigma=1e-4))
+        tree = cKDTree(model.interpolator.points)
+        lo, hi = x.min(axis=0), x.max(axis=0)
+        targets = lo + (hi - lo) * np.random.default_rng(1).uniform(size=(k, 2))
+
+        def cpu(fn) -> float:
+            t = time.thread_time()
+            fn()
+            return time.thread_time() - t
+
+        first = [cpu(lambda: model.correct(targets)) for _ in range(calls)]
+        then = [cpu(lambda: model.correct(targets)) / cpu(lambda: tree.query(targets, k=8))
+                for _ in range(20)]
+        rows.append(f"| {name} | {len(x)} | " + " | ".join(f"{t * 1e6 / k:.1f} µs" for t in first)
+                    + f" | {min(then):.2f} / {float(np.median(then)):.2f} |")
+        print(f"  calls {name} J={len(x)} done", file=sys.stderr)
+    return rows
+
+
 def correction_table(repeat: int) -> list[str]:
     rows = ["| interpolation | J | one target (model.correct) |", "|---|---|---|"]
     for method in ("paper", "kriging"):
@@ -268,6 +299,9 @@ def main() -> None:
     p.add_argument("--fresh", action="store_true",
                    help="only the 2D batches of new targets in every call (per target, ratio "
                         "to the k = 8 query)")
+    p.add_argument("--calls", action="store_true",
+                   help="only the 2D calls of the same targets, one after another (per target, "
+                        "then the ratio to the k = 8 query)")
     p.add_argument("--one-target", action="store_true",
                    help="only the one-target table (e.g. to compare trees: PYTHONPATH=<tree>)")
     args = p.parse_args()
@@ -276,6 +310,10 @@ def main() -> None:
     if args.fresh:
         print("### Target corrections, 2D, new targets in every call (K = 10,000)\n")
         print("\n".join(fresh_table()))
+        return
+    if args.calls:
+        print("### Target corrections, 2D, the same targets call after call (K = 10,000)\n")
+        print("\n".join(calls_table()))
         return
     if args.one_target:
         tree = os.path.dirname(os.path.dirname(rbc_registration.__file__))
