@@ -26,6 +26,7 @@ from scipy.linalg import lapack
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist, squareform
 
+from .blocked_linalg import inverse_from_cholesky
 from .validation import as_point_pairs
 
 #: Above this many fiducials the hyper-parameters are fitted on a subsample of this many (the
@@ -47,8 +48,6 @@ JITTER = 1e-10
 FTOL = 1e-11
 GTOL = 1e-5
 _SQRT5 = math.sqrt(5.0)
-#: Rows per block of :func:`inverse_from_cholesky`.
-_INVERSE_BLOCK = 512
 #: Entries :func:`matern52` processes at once (1 MB of float64 per scratch buffer).
 _BLOCK_ELEMENTS = 1 << 17
 _FAILED = 1e300
@@ -120,36 +119,6 @@ def _lower_inverse(c: NDArray[np.float64]) -> NDArray[np.float64]:
     if info != 0:
         raise np.linalg.LinAlgError("covariance is singular")
     return inv
-
-
-def inverse_from_cholesky(c: NDArray[np.float64]) -> NDArray[np.float64]:
-    """K^-1 (full, symmetric) from the lower Cholesky factor L of K (entries above its diagonal
-    are ignored): K^-1 = L^-T L^-1, by blocks of :data:`_INVERSE_BLOCK` rows.
-
-    The products run in numpy's matmul, which releases the GIL; only the diagonal blocks go
-    through LAPACK ``dtrtri``, whose scipy wrapper holds it. (``dpotri`` on the whole matrix held
-    the GIL for 0.7 s at J = 4,000 and stalled the node's executor during a kriging rebuild.)
-    """
-    n = len(c)
-    b = _INVERSE_BLOCK
-    li = np.zeros((n, n))                                   # L^-1, lower
-    for i in range(0, n, b):
-        j = min(n, i + b)
-        d, info = lapack.dtrtri(np.tril(c[i:j, i:j]), lower=1)
-        if info != 0:
-            raise np.linalg.LinAlgError("covariance is singular")
-        li[i:j, i:j] = d
-        if i:   # block row i of L^-1: -D_ii^-1 (L_i,<i L^-1_<i,<i)
-            li[i:j, :i] = -(d @ (c[i:j, :i] @ li[:i, :i]))
-    p = np.empty((n, n))
-    for i in range(0, n, b):
-        j = min(n, i + b)
-        p[i:j, :j] = li[i:, i:j].T @ li[i:, :j]             # rows k >= i hold L^-1[k, i:j]
-        p[:i, i:j] = p[i:j, :i].T
-        d = p[i:j, i:j]
-        upper = np.triu_indices(j - i, 1)
-        d[upper] = d.T[upper]                                # exactly symmetric
-    return p
 
 
 def _subsample(points: NDArray[np.float64], size: int) -> NDArray[np.intp]:
@@ -285,9 +254,9 @@ def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
     :param initial: a warm start, e.g. the previous model's hyper-parameters: refined from there
         (and compared with the coarse grid's best point), never reused as they are.
     :param gil_free: factorise and invert with calls that release the GIL (numpy's Cholesky,
-        :func:`inverse_from_cholesky`): the same optimum to rounding, not bit for bit; kriging
-        uses it above :data:`~.kriging.EXACT_MAX_FIDUCIALS`, where the fit runs beside the
-        node's answers.
+        :func:`.blocked_linalg.inverse_from_cholesky`): the same optimum to rounding, not bit for
+        bit; kriging uses it above :data:`~.kriging.EXACT_MAX_FIDUCIALS`, where the fit runs
+        beside the node's answers.
     :return: :class:`KrigingHyperparameters`.
     :raises ValueError: on bad input.
     """

@@ -32,10 +32,11 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg.lapack import dtrtrs
 from scipy.spatial.distance import cdist
 
+from .blocked_linalg import cholesky_blocked, inverse_from_cholesky
 from .gp_fit import (JITTER, KrigingHyperparameters, MarginalLikelihood, fit_hyperparameters,
-                     inverse_from_cholesky, matern52, repeat_counts)
+                     matern52, repeat_counts)
 from .interpolation import HullTest, Interpolated
-from .kriging_summary import DataSummary, HeldOutWeights, cholesky_blocked
+from .kriging_summary import DataSummary, HeldOutWeights
 from .validation import as_point_pairs, as_points
 
 __all__ = ["EXACT_MAX_FIDUCIALS", "KrigingHyperparameters", "KrigingInterpolator",

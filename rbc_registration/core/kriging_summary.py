@@ -40,9 +40,10 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg.lapack import dpotrf, dtrtri, dtrtrs
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
+
+from .blocked_linalg import solve_blocked
 
 #: Measurements of the nearest fiducials each target's variance is conditioned on (y_N).
 LOCAL_NEIGHBOURS = 32
@@ -53,71 +54,10 @@ INDUCING_POINTS = 128
 WHITEN_RTOL = 1e-12
 #: Relative diagonal jitter of the solve for theta (its error only raises the variance).
 SOLVE_JITTER = 1e-10
-#: Rows per block of :func:`solve_blocked` (LAPACK, which holds the GIL, sees one block at a time).
-SOLVE_BLOCK = 512
 #: Targets conditioned at once (each holds an (m, k) block of A_N).
 TARGET_BLOCK = 128
 
 Covariance = Callable[[NDArray[np.float64]], NDArray[np.float64]]
-
-
-def cholesky_blocked(a: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The lower Cholesky factor of the symmetric positive definite ``a`` (C-contiguous, (J, J)),
-    in place: right-looking by blocks of :data:`SOLVE_BLOCK`, the panel solves and the trailing
-    updates in numpy's matmul (the GIL released; ~70 GFLOP/s on one core of the project VM
-    against ~25 for ``numpy.linalg.cholesky``'s LAPACK, and no second J x J array), only the
-    diagonal blocks in LAPACK ``dpotrf``/``dtrtri``. Entries above the diagonal are zeroed.
-
-    :raises numpy.linalg.LinAlgError: when ``a`` is not positive definite.
-    """
-    n, step = len(a), SOLVE_BLOCK
-    for k in range(0, n, step):
-        e = min(n, k + step)
-        d, info = dpotrf(a[k:e, k:e], lower=1, clean=1)
-        if info != 0:
-            raise np.linalg.LinAlgError("covariance is not positive definite")
-        a[k:e, k:e] = d
-        a[k:e, e:] = 0.0
-        if e == n:
-            break
-        inv, info = dtrtri(d, lower=1)
-        if info != 0:
-            raise np.linalg.LinAlgError("covariance is singular")
-        panel = a[e:, k:e] @ inv.T                               # L21 = A21 L11^-T
-        a[e:, k:e] = panel
-        for j in range(e, n, step):                              # A22 -= L21 L21^T, lower
-            f = min(n, j + step)
-            a[j:, j:f] -= panel[j - e:] @ panel[j - e:f - e].T
-    return a
-
-
-def solve_blocked(low: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """K^-1 b for K = L L^T, L lower (entries above its diagonal ignored), by blocks of
-    :data:`SOLVE_BLOCK` rows: the off-diagonal products run in numpy's matmul (the GIL released),
-    only the diagonal blocks in LAPACK ``dtrtrs`` (scipy's ``cho_solve`` held the GIL for the
-    whole solve: ~0.1 s at J = 5,000)."""
-    n, step = len(low), SOLVE_BLOCK
-    x = np.array(b, dtype=np.float64, order="C")
-    starts = range(0, n, step)
-    for i in starts:                                         # L u = b
-        j = min(n, i + step)
-        if i:
-            x[i:j] -= low[i:j, :i] @ x[:i]
-        x[i:j] = _triangular(low[i:j, i:j], x[i:j], trans=0)
-    for i in reversed(starts):                               # L^T x = u
-        j = min(n, i + step)
-        if j < n:
-            x[i:j] -= low[j:, i:j].T @ x[j:]
-        x[i:j] = _triangular(low[i:j, i:j], x[i:j], trans=1)
-    return x
-
-
-def _triangular(low: NDArray[np.float64], b: NDArray[np.float64], trans: int
-                ) -> NDArray[np.float64]:
-    x, info = dtrtrs(np.asfortranarray(low), b, lower=1, trans=trans)
-    if info != 0:
-        raise np.linalg.LinAlgError("covariance is singular")
-    return x
 
 
 def spread_indices(points: NDArray[np.float64], count: int) -> NDArray[np.intp]:

@@ -148,17 +148,3 @@ def test_matern52_in_blocks_is_the_closed_form(monkeypatch):
         got = gp_fit.matern52(r.copy(), 0.8)
         assert got.shape == r.shape
         np.testing.assert_allclose(got, expected, rtol=1e-14, atol=0.0)
-
-
-def test_inverse_from_cholesky_is_the_symmetric_inverse():
-    rng = np.random.default_rng(5)
-    for n in (300, 700):   # one block of rows, and two with a partial one
-        x = rng.uniform(0.0, 1.0, (n, 3))
-        k = gp_fit.matern52(np.linalg.norm(x[:, None] - x[None], axis=-1), 0.3)
-        k.flat[::n + 1] += 1e-3
-        factor = np.linalg.cholesky(k)
-        factor[np.triu_indices(n, 1)] = rng.normal(size=n * (n - 1) // 2)   # ignored
-        inv = gp_fit.inverse_from_cholesky(factor)
-        np.testing.assert_array_equal(inv, inv.T)
-        np.testing.assert_allclose(inv @ k, np.eye(n), atol=1e-8)
-        np.testing.assert_allclose(inv, np.linalg.inv(k), rtol=0, atol=1e-10 * np.abs(inv).max())

@@ -95,21 +95,6 @@ def test_summary_of_all_the_data_is_exact(monkeypatch):
     np.testing.assert_allclose(approx(t).expected_error, exact(t).expected_error, rtol=1e-6)
 
 
-def test_blocked_cholesky_and_solve_are_numpy_and_scipy(monkeypatch):
-    monkeypatch.setattr(kriging_summary, "SOLVE_BLOCK", 7)        # several blocks, a partial one
-    rng = np.random.default_rng(4)
-    x = rng.uniform(0.0, 1.0, (40, 3))
-    k = matern52(np.linalg.norm(x[:, None] - x[None], axis=2), 0.3) + 1e-3 * np.eye(40)
-    low = kriging_summary.cholesky_blocked(k.copy())
-    np.testing.assert_allclose(low, np.linalg.cholesky(k), rtol=1e-10, atol=1e-12)
-    b = rng.normal(size=(40, 5))
-    np.testing.assert_allclose(kriging_summary.solve_blocked(low, b), np.linalg.solve(k, b),
-                               rtol=1e-8)
-    k[3, 3] = -1.0
-    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
-        kriging_summary.cholesky_blocked(k)
-
-
 def test_spread_indices_are_spread_and_invariant_to_rigid_motion():
     rng = np.random.default_rng(5)
     x = rng.uniform(0.0, 1.0, (500, 2))
