@@ -24,7 +24,7 @@ def test_blocked_cholesky_and_solve_are_numpy_and_scipy(monkeypatch):
 
 def test_inverse_from_cholesky_is_the_symmetric_inverse():
     rng = np.random.default_rng(5)
-    for n in (300, 700):   # one block of rows, and two with a partial one
+    for n in (100, 300, 700):   # one block of rows, and several with a partial one
         x = rng.uniform(0.0, 1.0, (n, 3))
         k = matern52(np.linalg.norm(x[:, None] - x[None], axis=-1), 0.3)
         k.flat[::n + 1] += 1e-3
