@@ -62,6 +62,10 @@ class HullTest:
                 # needs d + 2 points, and d + 1 points are one simplex anyway (default options).
                 joggle = "QJ" if len(local) > local.shape[1] + 1 else None
                 self.tri = Delaunay(local, qhull_options=joggle)
+                # The barycentric transforms of every simplex, which scipy computes on the first
+                # find_simplex: here, with the triangulation (in the node's recompute thread),
+                # not in the first answer of a new model (66-111 ms at J = 5,000 in 3D).
+                _ = self.tri.transform
         except QhullError as exc:
             raise ValueError(f"fiducials span no area for a convex hull: "
                              f"{str(exc).splitlines()[0]}") from None

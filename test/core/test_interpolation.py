@@ -2,8 +2,9 @@
 
 import numpy as np
 import pytest
+from scipy.spatial import Delaunay
 
-from rbc_registration.core.interpolation import PaperInterpolator
+from rbc_registration.core.interpolation import HullTest, PaperInterpolator
 from rbc_registration.core.kriging import KrigingInterpolator
 
 
@@ -140,3 +141,19 @@ def test_minimal_fiducial_count_is_one_simplex(dim):
     assert res.inside_hull.all()
     if dim == 3:                                  # barycentric: exact for a linear field
         np.testing.assert_allclose(res.correction, field(t), atol=1e-12)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_hull_computes_its_transforms_with_the_triangulation(dim):
+    """scipy computes (and caches in ``_transform``) the barycentric transforms of all simplices
+    on the first ``find_simplex``: the hull computes them when it is built, so the first answer of
+    a new model (in the node's executor) does not pay for them; locating is unchanged."""
+    rng = np.random.default_rng(dim)
+    pts = rng.uniform(0, 1, (200, dim))
+    hull = HullTest(pts)
+    assert getattr(hull.tri, "_transform", None) is not None
+    t = rng.uniform(-0.2, 1.2, (500, dim))
+    centre = pts.mean(axis=0)
+    np.testing.assert_array_equal(hull.simplices(t),
+                                  Delaunay(pts - centre, qhull_options="QJ").find_simplex(
+                                      t - centre, tol=1e-9))
