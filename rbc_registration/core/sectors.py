@@ -113,8 +113,10 @@ class EmptySectors:
     products of a point with the two boundary directions (one pair per sector). So sector s of T
     is empty when the smallest b over the fiducials with a >= a(T) is not below b(T): a binary
     search in the fiducials sorted by a, and a suffix minimum of b. Both tests are widened by a
-    margin of 1e-9 of the cell's scale, far above the rounding of ``sector_of``, so a sector called
-    empty is empty for the formula as well.
+    margin of 1e-9 of the cell's scale plus 1e-9 of the target's own coordinates (the rounding of
+    ``sector_of``'s F - T and of T's cross products grows with T: a target 1e6 cells away would
+    otherwise see a fiducial along a sector boundary in an "empty" sector), far above those
+    roundings, so a sector called empty is empty for the formula as well.
     """
 
     def __init__(self, points: NDArray[np.float64]) -> None:
@@ -131,11 +133,12 @@ class EmptySectors:
     def __call__(self, targets: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(K, 8): sector s of target k holds no fiducial."""
         out = np.empty((len(targets), SECTORS), dtype=bool)
+        margin = self.margin + 1e-9 * np.abs(targets).sum(axis=1)
         for s in range(SECTORS):
             a = _LOW_X[s] * targets[:, 1] - _LOW_Y[s] * targets[:, 0]
             b = _HIGH_X[s] * targets[:, 1] - _HIGH_Y[s] * targets[:, 0]
-            first = np.searchsorted(self._a[s], a - self.margin, side="left")
-            out[:, s] = self._min_b[s][first] >= b + self.margin
+            first = np.searchsorted(self._a[s], a - margin, side="left")
+            out[:, s] = self._min_b[s][first] >= b + margin
         return out
 
 

@@ -169,6 +169,30 @@ def test_empty_sectors_are_empty_and_found():
     assert (empty == ~holds).mean() > 0.99                  # and (nearly) every empty one
 
 
+def test_empty_sectors_far_from_the_cell():
+    """A target millions of cells away sees a fiducial along a sector boundary: the margin grows
+    with the target's coordinates, so that sector is not called empty (found in review: with a
+    margin of the cell's scale alone the staged weights were [1, 0, ...], the rule's
+    [0.5, 0.5, ...])."""
+    u = np.array([np.cos(np.pi / 8), np.sin(np.pi / 8)])
+    n = np.array([-u[1], u[0]])
+    pts = np.vstack([-0.05 * np.arange(1, 21)[:, None] * u - 0.5 * n, [[0.0, 0.0]]])
+    far = np.array([[-27716385.9753386, -11480502.97095269]])
+    tree = cKDTree(pts)
+    ref_idx, ref_w = sectors.sector_weights(tree, pts, far)
+    idx, w = sectors.staged_sector_weights(tree, pts, sectors.EmptySectors(pts), far)
+    np.testing.assert_array_equal(w, ref_w)
+    np.testing.assert_array_equal(idx[ref_w > 0], ref_idx[ref_w > 0])
+    rng = np.random.default_rng(12)                 # and along boundary rays, 1e4 to 1e12 away
+    r = 10.0 ** rng.uniform(4, 12, 4000)
+    ang = np.pi / 8 + np.pi / 4 * rng.integers(0, 8, 4000)
+    t = pts[rng.integers(0, len(pts), 4000)] - r[:, None] * np.c_[np.cos(ang), np.sin(ang)]
+    ref_idx, ref_w = reference_sectors(pts, t)
+    idx, w = sectors.staged_sector_weights(tree, pts, sectors.EmptySectors(pts), t)
+    np.testing.assert_array_equal(w, ref_w)
+    np.testing.assert_array_equal(idx[ref_w > 0], ref_idx[ref_w > 0])
+
+
 def test_sector_of_is_the_formula():
     rng = np.random.default_rng(5)
     ang = np.concatenate([rng.uniform(-np.pi, np.pi, 20000),
