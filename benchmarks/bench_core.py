@@ -212,7 +212,8 @@ def batch_table(repeat: int, k: int = 10_000) -> list[str]:
         lo, hi = x.min(axis=0), x.max(axis=0)
         targets = lo + (hi - lo) * rng.uniform(size=(k, d))
         tree = cKDTree(model.interpolator.points)
-        # 2D: calls 1-7 take the staged path, the 8th prepares the grid cells (PREPARE_AFTER).
+        # 2D: calls 1-7 take the staged path, the 8th prepares the grid cells (PREPARE_AFTER)
+        # and uses them.
         cold = [seconds(lambda: model.correct(targets)) for _ in range(2)]
         wall, cpu = alternate({"correct": lambda: model.correct(targets),
                                "floor": lambda: tree.query(targets, k=8)}, repeat)
@@ -228,9 +229,9 @@ def batch_table(repeat: int, k: int = 10_000) -> list[str]:
 
 
 def fresh_table(batches: int = 12, k: int = 10_000) -> list[str]:
-    """2D ``correct_targets`` of new random targets in every call (one model kept): the grid
-    cells of the sector rule are prepared the second time targets fall in them, so the cost per
-    target falls batch by batch towards the repeated-batch figure of :func:`batch_table`."""
+    """2D ``correct_targets`` of new random targets in every call (one model kept): most take
+    the staged path of the sector rule; a grid cell is prepared once ``PREPARE_AFTER`` targets
+    fell in it, so few cells are prepared within a dozen batches of 10,000."""
     shown = [b for b in (1, 2, 3, 4, 6, 8, 12, 16, 24) if b <= batches]
     rows = ["| cell | J | " + " | ".join(f"batch {b}" for b in shown) + " |",
             "|---|---|" + "---|" * len(shown)]

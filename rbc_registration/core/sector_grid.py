@@ -25,8 +25,8 @@ not just close.
 
 A cell is prepared when :data:`PREPARE_AFTER` targets have fallen in it (in one batch or across
 batches: preparing a cell costs about as much as 10 targets on the staged path) and kept: targets
-that come back, as a cell's holes do, take the grid path from their 8th call on; targets new in
-every call mostly take the staged path.
+that come back, as a cell's holes do, take the grid path from their 8th call on (the call that
+prepares the cells); targets new in every call mostly take the staged path.
 """
 
 from __future__ import annotations
@@ -59,7 +59,8 @@ MIN_CELLS, MAX_CELLS = 4096, 1 << 22
 
 class SectorIndex:
     """:func:`~.sectors.sector_weights` for batches, exactly, from a grid of prepared cells (module
-    docstring). Safe to share between threads: a cell is at worst prepared twice."""
+    docstring). Safe to share between threads: cells are prepared under a lock (once each), and
+    a hit count lost to a race only delays a cell's preparation."""
 
     def __init__(self, points: NDArray[np.float64], tree: cKDTree) -> None:
         """:param points: fiducials (J, 2) spanning an area. :param tree: their k-d tree."""
