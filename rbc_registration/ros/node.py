@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Callable, Mapping, Optional, Sequence
+from typing import Any, Callable, Optional
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -35,18 +35,17 @@ from ..pipeline.files import StateDirLock
 from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
 from ..pipeline.journal import Journal
-from ..pipeline.snapshot import snapshot_json, snapshot_path, tidy_state_dir, write_atomic
+from ..pipeline.snapshot import tidy_state_dir, write_atomic
 from ..pipeline.state import EMPTY_STATE, ModelState, build_state, warm_start
 from ..pipeline.worker import LatestWriter, RecomputeWorker
 from . import conversions as conv
 from . import params, samples, saved
 from .batching import batched_subscription
 from .guards import guard_service
-from .markers import markers_msg
 from .param_callbacks import ParametersMixin
 from .planning import PlanningMixin
+from .publishing import PublishingMixin
 from .services import ServicesMixin
-from .status import diagnostics_msg, health_of, status_msg
 from .tf_static import StaticTf
 
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -60,7 +59,7 @@ INPUT = {"reliable": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
                                    reliability=ReliabilityPolicy.BEST_EFFORT)}
 
 
-class RegistrationNode(ServicesMixin, ParametersMixin, PlanningMixin, Node):
+class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, PlanningMixin, Node):
     """The registration node (see the module docstring and msg_docs/README.md).
 
     :param build: builds the :class:`ModelState` from the fiducials, settings and a stamp
@@ -220,70 +219,6 @@ class RegistrationNode(ServicesMixin, ParametersMixin, PlanningMixin, Node):
 
     def _on_worker_error(self, exc: BaseException) -> None:
         self.get_logger().error(f"recompute failed: {type(exc).__name__}: {exc}")
-
-    def _publish_model(self, state: ModelState,
-                       disabled_points: Mapping[str, Sequence[float]]) -> None:
-        """Publish a new model (recompute thread). The markers are built before the publishing
-        lock is taken: the executor's status timer takes that lock too."""
-        s = self._settings
-        now = self.get_clock().now().to_msg()
-        markers = markers_msg(state, s, now, disabled_points)
-        with self._pub_lock:
-            if state.model is not None:
-                corrected = conv.registration_to_transform(
-                    state.model.corrected, s.destination_frame, s.working_frame, now)
-                uncorrected = conv.registration_to_transform(
-                    state.model.uncorrected, s.destination_frame, s.working_frame, now)
-                self._pub_transform.publish(corrected)
-                self._pub_transform_u.publish(uncorrected)
-                self._tf_transforms = {"corrected": corrected, "uncorrected": uncorrected}
-                self._loaded = None  # the live model replaces a calibration_file
-                self._publish_tf()
-            self._pub_markers.publish(markers)
-        self._publish_status()
-        self._plan_model(state)   # ~/status expected_target_error follows from its thread
-        if s.state_dir:
-            self._snapshots.submit(state)   # serialised and written in its own thread
-
-    def _on_snapshot_error(self, exc: BaseException) -> None:
-        # e.g. disk full: the journal still holds every measurement
-        self.get_logger().error(f"calibration snapshot not written: {exc}")
-
-    def _publish_tf(self) -> None:
-        """/tf_static: the registration ``tf_broadcast`` chooses of the latest model (call with
-        ``_pub_lock`` held); nothing of this node's child frame without one or with ``none``."""
-        chosen = self._tf_transforms.get(self._settings.tf_broadcast)
-        if chosen is None:
-            self._tf.remove(self._settings.working_frame)
-        else:
-            self._tf.set(chosen)
-
-    def status(self) -> RegistrationStatus:
-        """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
-        msg = status_msg(self._state, self._settings, self._ingest.counters(),
-                         self.get_clock().now().to_msg(), self._expected_target_error())
-        loaded = self._loaded
-        if loaded is not None and self._state.model is None:
-            msg.message = "; ".join(filter(None, (loaded.describe(), msg.message)))
-        return msg
-
-    def _publish_status(self) -> None:
-        status = self.status()
-        loaded = self._loaded
-        with self._pub_lock:
-            self._health.stale_after = self._settings.stale_after
-            health = health_of(status, self._health, self._ingest.journal_error,
-                               loaded.describe() if loaded is not None else "")
-            self._pub_status.publish(status)
-            self._pub_diagnostics.publish(diagnostics_msg(status, self.get_name(),
-                                                          status.header.stamp, health))
-
-    def _save(self, state: ModelState) -> str:
-        s = self._settings
-        path = snapshot_path(s.state_dir)
-        self._write_snapshot(path, snapshot_json(state, s.working_frame, s.destination_frame,
-                                                 s.dimension))
-        return path
 
     def destroy_node(self) -> None:
         """Stop the recompute, planning and snapshot threads, close the journal, release

@@ -1,0 +1,110 @@
+"""What ``registration_node`` publishes about its model (a mixin of
+:class:`~rbc_registration.ros.node.RegistrationNode`): the corrected and uncorrected
+transforms, ``/tf_static``, the markers, ``~/status`` with its diagnostics, and the calibration
+snapshot. See msg_docs/README.md for the topics and frames.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+from rbc_registration_interfaces.msg import RegistrationStatus
+
+from ..pipeline.snapshot import snapshot_json, snapshot_path
+from ..pipeline.state import ModelState
+from . import conversions as conv
+from .markers import markers_msg
+from .status import diagnostics_msg, health_of, status_msg
+
+
+class PublishingMixin:
+    """Publishing of a new model and of the status; the node provides the publishers
+    (``_pub_transform``, ``_pub_transform_u``, ``_pub_markers``, ``_pub_status``,
+    ``_pub_diagnostics``), ``_pub_lock``, ``_tf`` (:class:`~.tf_static.StaticTf`), ``_settings``,
+    ``_state``, ``_ingest``, ``_health``, ``_snapshots``, ``_write_snapshot`` and, from
+    :class:`~.planning.PlanningMixin`, ``_plan_model`` and ``_expected_target_error``."""
+
+    _settings: Any
+    _state: Any
+    _ingest: Any
+    _health: Any
+    _pub_lock: Any
+    _pub_transform: Any
+    _pub_transform_u: Any
+    _pub_markers: Any
+    _pub_status: Any
+    _pub_diagnostics: Any
+    _tf: Any
+    _tf_transforms: dict
+    _loaded: Any
+    _snapshots: Any
+    _write_snapshot: Any
+    _plan_model: Any
+    _expected_target_error: Any
+    get_clock: Any
+    get_logger: Any
+    get_name: Any
+
+    def _publish_model(self, state: ModelState,
+                       disabled_points: Mapping[str, Sequence[float]]) -> None:
+        """Publish a new model (recompute thread). The markers are built before the publishing
+        lock is taken: the executor's status timer takes that lock too."""
+        s = self._settings
+        now = self.get_clock().now().to_msg()
+        markers = markers_msg(state, s, now, disabled_points)
+        with self._pub_lock:
+            if state.model is not None:
+                corrected = conv.registration_to_transform(
+                    state.model.corrected, s.destination_frame, s.working_frame, now)
+                uncorrected = conv.registration_to_transform(
+                    state.model.uncorrected, s.destination_frame, s.working_frame, now)
+                self._pub_transform.publish(corrected)
+                self._pub_transform_u.publish(uncorrected)
+                self._tf_transforms = {"corrected": corrected, "uncorrected": uncorrected}
+                self._loaded = None  # the live model replaces a calibration_file
+                self._publish_tf()
+            self._pub_markers.publish(markers)
+        self._publish_status()
+        self._plan_model(state)   # ~/status expected_target_error follows from its thread
+        if s.state_dir:
+            self._snapshots.submit(state)   # serialised and written in its own thread
+
+    def _on_snapshot_error(self, exc: BaseException) -> None:
+        # e.g. disk full: the journal still holds every measurement
+        self.get_logger().error(f"calibration snapshot not written: {exc}")
+
+    def _publish_tf(self) -> None:
+        """/tf_static: the registration ``tf_broadcast`` chooses of the latest model (call with
+        ``_pub_lock`` held); nothing of this node's child frame without one or with ``none``."""
+        chosen = self._tf_transforms.get(self._settings.tf_broadcast)
+        if chosen is None:
+            self._tf.remove(self._settings.working_frame)
+        else:
+            self._tf.set(chosen)
+
+    def status(self) -> RegistrationStatus:
+        """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
+        msg = status_msg(self._state, self._settings, self._ingest.counters(),
+                         self.get_clock().now().to_msg(), self._expected_target_error())
+        loaded = self._loaded
+        if loaded is not None and self._state.model is None:
+            msg.message = "; ".join(filter(None, (loaded.describe(), msg.message)))
+        return msg
+
+    def _publish_status(self) -> None:
+        status = self.status()
+        loaded = self._loaded
+        with self._pub_lock:
+            self._health.stale_after = self._settings.stale_after
+            health = health_of(status, self._health, self._ingest.journal_error,
+                               loaded.describe() if loaded is not None else "")
+            self._pub_status.publish(status)
+            self._pub_diagnostics.publish(diagnostics_msg(status, self.get_name(),
+                                                          status.header.stamp, health))
+
+    def _save(self, state: ModelState) -> str:
+        s = self._settings
+        path = snapshot_path(s.state_dir)
+        self._write_snapshot(path, snapshot_json(state, s.working_frame, s.destination_frame,
+                                                 s.dimension))
+        return path
