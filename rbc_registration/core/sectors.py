@@ -23,6 +23,7 @@ the others.
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -67,6 +68,15 @@ def sector_of(dx: NDArray[np.float64], dy: NDArray[np.float64]) -> NDArray[np.in
     return sector
 
 
+def _in_chunks(weights: Callable[[NDArray[np.float64]], tuple[NDArray[np.intp],
+                                                                NDArray[np.float64]]],
+               targets: NDArray[np.float64], size: int
+               ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """``weights`` of ``targets`` by chunks of ``size``, concatenated."""
+    parts = [weights(targets[a:a + size]) for a in range(0, len(targets), size)]
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
 def on_fiducial_tolerance(points: NDArray[np.float64]) -> float:
     """Distance below which a target counts as on a fiducial."""
     return 1e-12 * max(1.0, float(np.abs(points).max()))
@@ -78,9 +88,7 @@ def sector_weights(tree: cKDTree, points: NDArray[np.float64], targets: NDArray[
     weights, both (K, 8), slot k for sector k; empty sectors have weight 0 (and, as index, the
     nearest fiducial)."""
     if len(targets) > CHUNK:            # bounded temporaries: (K, 64, 8) per chunk
-        parts = [sector_weights(tree, points, targets[a:a + CHUNK])
-                 for a in range(0, len(targets), CHUNK)]
-        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+        return _in_chunks(lambda t: sector_weights(tree, points, t), targets, CHUNK)
     k = min(SECTOR_CANDIDATES, len(points))
     dist, cand = tree.query(targets, k=k)
     dist, cand = dist.reshape(len(targets), k), cand.reshape(len(targets), k)
@@ -148,9 +156,8 @@ def staged_sector_weights(tree: cKDTree, points: NDArray[np.float64], empty: Emp
     """:func:`sector_weights`, bit for bit, from the queries of :data:`STAGES` first (module
     docstring); ``empty``: the :class:`EmptySectors` of ``points``."""
     if len(targets) > 4 * CHUNK:        # bounded temporaries: (K, 32) per chunk
-        parts = [staged_sector_weights(tree, points, empty, targets[a:a + 4 * CHUNK])
-                 for a in range(0, len(targets), 4 * CHUNK)]
-        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+        return _in_chunks(lambda t: staged_sector_weights(tree, points, empty, t), targets,
+                          4 * CHUNK)
     idx = np.empty((len(targets), SECTORS), dtype=np.intp)
     w = np.empty((len(targets), SECTORS))
     left = np.arange(len(targets))

@@ -162,8 +162,8 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
         w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
         t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes]
         groups.setdefault(fid, []).append((line, w, t))
-    limits = _repeat_limits(([g[0][1] for g in groups.values()],
-                             [g[0][2] for g in groups.values()]), outlier_distance)
+    limits = _repeat_limits([[g[0][1] for g in groups.values()],
+                             [g[0][2] for g in groups.values()]], outlier_distance)
     notes: list[str] = []
     work, dest = [], []
     for fid, group in groups.items():
@@ -173,14 +173,13 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
     return FiducialTable(tuple(groups), tuple(work), tuple(dest), d, tuple(notes))
 
 
-def _repeat_limits(first_rows: tuple[list[list[float]], list[list[float]]],
-                   outlier_distance: Optional[float], kind: str = "fiducial"
-                   ) -> tuple[tuple[float, str], ...]:
-    """(limit, how it is named) for the working and the destination frame: ``outlier_distance``,
-    else :data:`CONFLICT_FRACTION` x the typical spacing of the ids' first rows in that frame
-    (``first_rows``: working, destination; ``kind``: what the ids are, for the name)."""
+def _repeat_limits(first_rows: list[list[list[float]]], outlier_distance: Optional[float],
+                   kind: str = "fiducial") -> tuple[tuple[float, str], ...]:
+    """(limit, how it is named) for each frame of ``first_rows`` (the ids' first rows in it,
+    e.g. working and destination): ``outlier_distance``, else :data:`CONFLICT_FRACTION` x the
+    typical spacing of those rows (``kind``: what the ids are, for the name)."""
     if outlier_distance is not None:
-        return ((float(outlier_distance), "outlier_distance"),) * 2
+        return ((float(outlier_distance), "outlier_distance"),) * len(first_rows)
     out = []
     for points in first_rows:
         spacing = typical_spacing(points)
@@ -242,21 +241,19 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
             raise CsvError(f"{path}: row {line}: column id is empty")
         tids.append(tid)
         work.append([_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes])
-        truth.append([_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes]
-                     if has_truth else work[-1])
+        if has_truth:
+            truth.append([_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes])
     first = [index[0] for index in rows_by_id(tids).values()]
-    (w_limit, w_name), (t_limit, t_name) = _repeat_limits(
-        ([work[k] for k in first], [truth[k] for k in first]), outlier_distance, kind)
-    frames = [("working", work, w_limit, w_name)]
-    if has_truth:
-        frames.append(("truth", truth, t_limit, t_name))
-    conflict = first_conflict(tids, frames, kind)
+    named = [("working", work)] + ([("truth", truth)] if has_truth else [])
+    limits = _repeat_limits([[points[k] for k in first] for _, points in named],
+                            outlier_distance, kind)
+    conflict = first_conflict(tids, [(frame, points, *limit)
+                                     for (frame, points), limit in zip(named, limits)], kind)
     if conflict is not None:
         lines = [line for line, _ in rows]
         raise CsvError(f"{path}: id {tids[conflict.row]!r} (first at row "
                        f"{lines[conflict.first]}) has conflicting {conflict.frame} points: row "
-                       f"{lines[conflict.row]}: "
-                       f"{conflict.message}")
+                       f"{lines[conflict.row]}: {conflict.message}")
     ids, means = mean_by_id(tids, work, *([truth] if has_truth else []))
     return TargetTable(ids, means[0], means[1] if has_truth else None)
 
