@@ -60,6 +60,26 @@ def test_exact_up_to_the_threshold_and_the_summary_only_above(monkeypatch):
     assert isinstance(above.held_out([np.arange(3)])[0][0], kriging_summary.HeldOutWeights)
 
 
+def test_a_summarised_model_does_not_keep_the_factor(monkeypatch):
+    """Above the threshold the answers and held-out predictions read the summary only: the J x J
+    Cholesky factor (200 MB at J = 5,000) is dropped once the summary is built."""
+    import tracemalloc
+    monkeypatch.setattr(kriging, "EXACT_MAX_FIDUCIALS", 300)
+    x, values, hyper = cell(1200, 3, 0.3)
+    tracemalloc.start()
+    try:
+        model = KrigingInterpolator(x, values, hyperparameters=hyper)
+        kept, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    factor = 8 * len(x) ** 2                             # bytes of one J x J array
+    assert model.chol is None and peak >= factor         # it was built ...
+    assert kept < factor                                 # ... and not kept
+    t = np.random.default_rng(2).uniform(0, 1, (5, 3))
+    got = model(t)
+    assert np.isfinite(got.correction).all() and (got.expected_error > 0).all()
+
+
 @pytest.mark.parametrize("d, length, noise", [(2, 0.05, 0.3), (2, 0.3, 0.03), (3, 0.2, 0.1),
                                               (3, 0.5, 0.1)],
                          ids=["2d-short", "2d-long", "3d-short", "3d-long"])
