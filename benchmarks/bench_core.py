@@ -5,7 +5,8 @@
   with the normal matrix assembled from the pair blocks and Cholesky (``direct``), and a dense
   formulation (the J(J-1)/2 x dJ Jacobian and numpy lstsq) with the ratios; sigma_L excluded
   (timed separately), as the targets are about the solver.
-- model rebuild: ``build_model`` with its defaults (3D, iterative, paper) at J = 1,000 to 10,000,
+- model rebuild: ``build_model`` with its defaults (3D, iterative, paper, the ``cv`` decision,
+  which cross-validates every candidate) at J = 1,000 to 10,000,
   against a floor in the same run (one O(J) rigid fit of the same fiducials), and what it is made
   of (sigma_L0, the restoration, the interpolator's Delaunay triangulation and k-d tree).
 - target corrections, batched: ``RbcModel.correct`` (hull test, interpolation, both rigid maps) of
@@ -18,6 +19,9 @@
   trees with ``PYTHONPATH=<tree>``, alternating.
 - large J (``--large``): iterative for J up to 10,000 and closed-form up to 100,000.
 - one target correction in process (paper and kriging); ``--one-target``: only this table.
+- ``--modes``: only a paper rebuild (``build_model``, 3D) per decision mode at J = 5,000 and
+  10,000, wall clock and the CPU time of all threads (``cv`` cross-validates the kriging
+  candidate in a thread of its own).
 
 Prints Markdown. Times are wall clock (1 BLAS thread unless ``--threads``), on whatever machine
 runs it; the machine should otherwise be idle, and ratios against a floor measured in the same
@@ -252,6 +256,25 @@ def fresh_table(batches: int = 12, k: int = 10_000) -> list[str]:
     return rows
 
 
+def modes_table(repeat: int = 2) -> list[str]:
+    rows = ["| J | decision | build_model (interpolation paper, 3D): min / max | CPU time of all "
+            "threads: min |", "|---|---|---|---|"]
+    for j in (5000, 10_000):
+        x, y = cell(j, 3)
+        for mode in ("off", "on", "rho", "cv"):
+            config = ModelConfig(decision=mode, sigma=1e-4)
+            wall, cpu = [], []
+            for _ in range(repeat):
+                c, t = time.process_time(), time.perf_counter()
+                build_model(x, y, config)
+                wall.append(time.perf_counter() - t)
+                cpu.append(time.process_time() - c)
+            rows.append(f"| {j} | {mode} | {fmt(min(wall))} / {fmt(max(wall))} | "
+                        f"{fmt(min(cpu))} |")
+            print(f"  modes J={j} {mode} done", file=sys.stderr)
+    return rows
+
+
 def calls_table(calls: int = 10, k: int = 10_000) -> list[str]:
     """2D ``correct_targets`` of the same targets call after call (a new model per cell): CPU
     time per target of each of the first calls (the grid cells are prepared on the
@@ -305,12 +328,18 @@ def main() -> None:
                         "then the ratio to the k = 8 query)")
     p.add_argument("--one-target", action="store_true",
                    help="only the one-target table (e.g. to compare trees: PYTHONPATH=<tree>)")
+    p.add_argument("--modes", action="store_true",
+                   help="only the paper rebuild per decision mode at J = 5,000 and 10,000")
     args = p.parse_args()
     print(f"BLAS threads: {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}, "
           f"cores: {os.cpu_count()}\n")
     if args.fresh:
         print("### Target corrections, 2D, new targets in every call (K = 10,000)\n")
         print("\n".join(fresh_table()))
+        return
+    if args.modes:
+        print("### Model rebuild by decision mode (paper, 3D)\n")
+        print("\n".join(modes_table()))
         return
     if args.calls:
         print("### Target corrections, 2D, the same targets call after call (K = 10,000)\n")

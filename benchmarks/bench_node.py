@@ -23,12 +23,15 @@ Per run, alternating the order of the processes:
    counting subscriber taking up to ``input_batch`` queued pairs per wake-up like the node).
 
 ``--during-rebuild J`` measures instead ``~/correct_target`` latency while the node rebuilds a
-``kriging`` model of J fiducials (3D), triggered by setting the ``interpolation`` parameter.
+``kriging`` model of J fiducials (3D), triggered by setting the ``interpolation`` parameter, and
+how long the rebuild takes meanwhile: calls back to back (the most load one client can put on the
+node), or ``--rate HZ`` calls per second (a cell asking for corrections at a steady rate).
 
 Run (from the repository root, after scripts/bootstrap.sh):
 
     source scripts/env.sh && python benchmarks/bench_node.py              # --runs 5
     source scripts/env.sh && python benchmarks/bench_node.py --during-rebuild 5000
+    source scripts/env.sh && python benchmarks/bench_node.py --during-rebuild 5000 --rate 100
 
 DDS stays on loopback: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST is set here and inherited by the
 children; ROS_DOMAIN_ID is this process's own unless set. Every loop is bounded in count and time.
@@ -329,7 +332,13 @@ def bench_during_rebuild(args, client, executor, node: Target) -> None:
     assert call(executor, setp, request).results[0].successful
     latencies = []
     deadline = t_set + args.rebuild_timeout
+    period = 1.0 / args.rate if args.rate > 0 else 0.0
+    t_next = t_set
     while node.statuses[-1].last_recompute == stamp and time.perf_counter() < deadline:
+        if period:                        # paced: the next call at its slot, spinning meanwhile
+            t_next += period
+            while time.perf_counter() < t_next:
+                executor.spin_once(timeout_sec=max(0.0, t_next - time.perf_counter()))
         t0 = time.perf_counter()
         response = call(executor, node.srv, node.requests[len(latencies) % len(node.requests)])
         latencies.append(time.perf_counter() - t0)
@@ -337,8 +346,9 @@ def bench_during_rebuild(args, client, executor, node: Target) -> None:
     t_rebuild = time.perf_counter() - t_set
     done = node.statuses[-1].last_recompute != stamp
     ms = np.array(latencies) * 1e3
+    pace = f"{args.rate:g} calls/s" if args.rate > 0 else "back to back"
     print(f"during the kriging rebuild ({'finished' if done else 'NOT finished'} after "
-          f"{t_rebuild:.1f} s, incl. debounce 0.2 s): {len(ms)} calls, p50 "
+          f"{t_rebuild:.1f} s, incl. debounce 0.2 s): {len(ms)} calls {pace}, p50 "
           f"{np.percentile(ms, 50):.3f} ms, p99 {np.percentile(ms, 99):.3f} ms, "
           f"max {ms.max():.3f} ms; load average {os.getloadavg()[0]:.2f}")
 
@@ -351,6 +361,8 @@ def main() -> int:
     parser.add_argument("--journal-fsync", action="store_true", help="fsync every record")
     parser.add_argument("--during-rebuild", type=int, default=0, metavar="J",
                         help="instead: correct_target latency during a kriging rebuild at J")
+    parser.add_argument("--rate", type=float, default=0.0, metavar="HZ",
+                        help="with --during-rebuild: calls per second (default 0: back to back)")
     parser.add_argument("--rebuild-timeout", type=float, default=120.0,
                         help="most seconds to wait for that rebuild")
     parser.add_argument("--floor", choices=("trigger", "correct_target"), help=argparse.SUPPRESS)
