@@ -131,3 +131,20 @@ def test_the_entry_point_defaults_to_one_blas_thread_before_numpy(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "b")], env=env,
                           capture_output=True, text=True)
     assert proc.returncode == 0 and proc.stdout.splitlines()[-1] == "2", proc.stdout + proc.stderr
+
+
+def test_freeze_startup_objects_collects_first_then_freezes():
+    """``registration_node`` freezes what its start created (runtime.freeze_startup_objects):
+    garbage of the start is collected first, the rest leaves the cyclic collector's scans."""
+    code = ("import gc, weakref\nfrom rbc_registration.runtime import freeze_startup_objects\n"
+            "class C: pass\n"
+            "a = C(); a.me = a; dead = weakref.ref(a); del a\n"      # cyclic garbage
+            "keep = [C() for _ in range(1000)]\n"
+            "n = freeze_startup_objects()\n"
+            "assert dead() is None, 'garbage frozen'\n"
+            "assert n == gc.get_freeze_count() > 1000, n\n"
+            "scanned = {id(o) for o in gc.get_objects()}\n"
+            "assert not any(id(k) in scanned for k in keep), 'not frozen'\n"
+            "later = C(); assert id(later) in {id(o) for o in gc.get_objects()}\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr

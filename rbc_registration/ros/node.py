@@ -38,6 +38,7 @@ from ..pipeline.journal import Journal
 from ..pipeline.snapshot import tidy_state_dir, write_atomic
 from ..pipeline.state import EMPTY_STATE, ModelState, build_state, warm_start
 from ..pipeline.worker import LatestWriter, RecomputeWorker
+from ..runtime import freeze_startup_objects
 from . import conversions as conv
 from . import params, samples, saved
 from .batching import batched_subscription
@@ -256,6 +257,7 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
         # executor; model rebuilds run in their own thread, so services still answer meanwhile.
         executor = SingleThreadedExecutor()
         executor.add_node(node)
+        freeze_startup_objects()    # shorter full garbage collections (runtime.py)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
