@@ -23,19 +23,29 @@ pytestmark = pytest.mark.ros
 
 class TestDecisionInStatusAndDiagnostics(NodeTestBase):
 
-    def diagnostics(self, node, predicate=lambda s: True):
-        """The newest /diagnostics status of ``node`` satisfying ``predicate``."""
+    def diagnostics(self, node, predicate=lambda s: True, got=None):
+        """The newest /diagnostics status of ``node`` satisfying ``predicate``: among ``got``
+        (messages an earlier :meth:`watch` collects and keeps collecting), else from a new
+        subscription."""
         name = node.get_name()
-        got = []
-        sub = self.ros.client.create_subscription(DiagnosticArray, "/diagnostics", got.append, 10)
 
         def mine():
             return [s for m in got for s in m.status if s.name.startswith(name) and predicate(s)]
+        if got is not None:
+            wait_for(lambda: mine(), what="a /diagnostics status")
+            return mine()[-1]
+        got, sub = self.watch()
         try:
             wait_for(lambda: mine(), what="a /diagnostics status")
             return mine()[-1]
         finally:
             self.ros.client.destroy_subscription(sub)
+
+    def watch(self):
+        """A /diagnostics subscription collecting into a list: (the list, the subscription)."""
+        got = []
+        return got, self.ros.client.create_subscription(DiagnosticArray, "/diagnostics",
+                                                        got.append, 10)
 
     @staticmethod
     def values(status):
@@ -81,15 +91,23 @@ class TestDecisionInStatusAndDiagnostics(NodeTestBase):
         node = self.make_node()
         self.stream(node)
         self.recompute(node)
-        pub = self.publisher(node, FiducialPair, "fiducial_pairs")
-        pub.publish(pair_msg(self.cell, 0, frame="elsewhere"))
-        wait_for(lambda: node.status().n_rejected == 1, what="rejection")
-        d = self.diagnostics(node, lambda s: "rejected" in s.message)
-        assert d.level == DiagnosticStatus.WARN
-        assert "1 measurement(s) rejected since the last report" in d.message
-        # The next reports see no new rejection: OK again.
-        d = self.diagnostics(node, lambda s: s.level == DiagnosticStatus.OK)
-        assert "rejected" not in d.message
+        # subscribed (and matched: a report arrived) before the rejection, whose WARN is in one
+        # report only
+        got, sub = self.watch()
+        try:
+            self.diagnostics(node, got=got)
+            pub = self.publisher(node, FiducialPair, "fiducial_pairs")
+            pub.publish(pair_msg(self.cell, 0, frame="elsewhere"))
+            wait_for(lambda: node.status().n_rejected == 1, what="rejection")
+            d = self.diagnostics(node, lambda s: "rejected" in s.message, got=got)
+            assert d.level == DiagnosticStatus.WARN
+            assert "1 measurement(s) rejected since the last report" in d.message
+            # The next reports see no new rejection: OK again.
+            got.clear()
+            d = self.diagnostics(node, lambda s: s.level == DiagnosticStatus.OK, got=got)
+            assert "rejected" not in d.message
+        finally:
+            self.ros.client.destroy_subscription(sub)
 
     def test_warn_for_a_stale_model(self):
         node = self.make_node(stale_after=0.05)
