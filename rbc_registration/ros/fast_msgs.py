@@ -17,6 +17,7 @@ bytes as) messages built the generated way.
 
 from __future__ import annotations
 
+import copy
 import sys
 from typing import Any
 
@@ -89,4 +90,32 @@ def target_correction(destination: PointStamped, corrected: PointStamped,
     m._correction, m._correction_applied = correction, correction_applied
     m._inside_hull, m._expected_error = inside_hull, expected_error
     m._method, m._expected_tre, m._tre_bound = method, expected_tre, tre_bound
+    return m
+
+
+def like(template: Any, **fields: Any) -> Any:
+    """A new message of ``template``'s class with ``fields`` (names as in the message) and
+    every other field the template's own value: the same objects, shared, not copied, so
+    neither message may be changed afterwards. E.g. the correction arrows of ``~/markers``,
+    which differ only in ``id`` and ``points`` (about 3 us each instead of 50 us for a generated
+    ``Marker()`` and its 9 sub-messages). With field checks on: a deep copy, then the fields set
+    the checked way.
+
+    :raises AttributeError: for a name that is not a field of the message.
+    """
+    cls = type(template)
+    slots = cls.__slots__
+    for name in fields:
+        if "_" + name not in slots:
+            raise AttributeError(f"{cls.__name__} has no field {name!r}")
+    if _checks_on(cls):
+        m = copy.deepcopy(template)
+        for name, value in fields.items():
+            setattr(m, name, value)
+        return m
+    m = cls.__new__(cls)
+    for slot in slots:
+        setattr(m, slot, getattr(template, slot))
+    for name, value in fields.items():
+        setattr(m, "_" + name, value)
     return m

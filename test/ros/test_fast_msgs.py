@@ -112,3 +112,24 @@ def test_fields_can_be_set_afterwards():
     expected.header.frame_id, expected.header.stamp = "map", Time(sec=3)
     expected.point.x, expected.point.y, expected.point.z = 9.0, 2.0, 3.0
     assert ps == expected
+
+
+def test_like_is_the_template_with_the_fields_given():
+    """``like``: equal to a generated message with the same fields, the same bytes, every slot
+    written, the template unchanged; an unknown field is refused."""
+    from visualization_msgs.msg import Marker
+    template = Marker(type=Marker.ARROW, ns="rbc/corrections", action=Marker.ADD)
+    template.header.frame_id, template.header.stamp = "world", Time(sec=7, nanosec=5)
+    template.scale.x, template.color.r, template.pose.orientation.w = 0.2, 0.9, 1.0
+    points = [fast_msgs.point(1.0, 2.0, 3.0), fast_msgs.point(4.0, 5.0, 6.0)]
+    got = fast_msgs.like(template, id=42, points=points)
+    expected = Marker(type=Marker.ARROW, ns="rbc/corrections", action=Marker.ADD, id=42,
+                      points=[Point(x=1.0, y=2.0, z=3.0), Point(x=4.0, y=5.0, z=6.0)])
+    expected.header.frame_id, expected.header.stamp = "world", Time(sec=7, nanosec=5)
+    expected.scale.x, expected.color.r, expected.pose.orientation.w = 0.2, 0.9, 1.0
+    assert type(got) is Marker and got == expected
+    assert serialize_message(got) == serialize_message(expected)
+    assert all(hasattr(got, slot) for slot in Marker.__slots__)
+    assert template.id == 0 and template.points == []
+    with pytest.raises(AttributeError, match="no field 'colour'"):
+        fast_msgs.like(template, colour=None)
