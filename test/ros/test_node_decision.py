@@ -28,18 +28,18 @@ class TestDecisionInStatusAndDiagnostics(NodeTestBase):
         (messages an earlier :meth:`watch` collects and keeps collecting), else from a new
         subscription."""
         name = node.get_name()
+        own = got is None
+        if own:
+            got, sub = self.watch()
 
         def mine():
             return [s for m in got for s in m.status if s.name.startswith(name) and predicate(s)]
-        if got is not None:
-            wait_for(lambda: mine(), what="a /diagnostics status")
-            return mine()[-1]
-        got, sub = self.watch()
         try:
             wait_for(lambda: mine(), what="a /diagnostics status")
             return mine()[-1]
         finally:
-            self.ros.client.destroy_subscription(sub)
+            if own:
+                self.ros.client.destroy_subscription(sub)
 
     def watch(self):
         """A /diagnostics subscription collecting into a list: (the list, the subscription)."""
