@@ -19,6 +19,12 @@ the bound q s(T), which it stays within with probability >= level when targets a
 fiducials. For a corrected method the scale is kriging's predictive standard deviation (the field's
 posterior plus one measurement's noise), so targets near fiducials get tighter bounds than
 extrapolated ones; for the uncorrected registration it is 1 (the quantile of the errors).
+
+A target's scale is never taken below the smallest scale of the held-out fiducials
+(``ErrorModel.scale_floor``): the quantile is calibrated on those scales only, and below them the
+scale rests on kriging's noise estimate, which single measurements of a biased cell cannot check
+(maximum likelihood often puts the noise into a short-scale field, fitted noise ~0: a target on
+a fiducial then got a bound of ~0 against an error of its own noise and the fiducial's).
 """
 
 from __future__ import annotations
@@ -93,18 +99,21 @@ class CandidateScore:
 class ErrorModel:
     """How a target's ``expected_tre`` and bound follow from the held-out errors of ``method``:
     ``median_factor * scale`` and ``bound_factor * scale``, ``scale`` the kriging predictive
-    standard deviation per axis at the target when ``scaled``, else 1. ``level`` is the bound's
-    coverage. NaN factors: no cross-validation was possible."""
+    standard deviation per axis at the target when ``scaled`` (at least ``scale_floor``, the
+    smallest of the held-out fiducials'), else 1. ``level`` is the bound's coverage. NaN
+    factors: no cross-validation was possible."""
 
     method: str
     scaled: bool
     median_factor: float
     bound_factor: float
     level: float = BOUND_LEVEL
+    scale_floor: float = 0.0
 
     def at(self, scale: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(expected_tre, bound) for targets of the given scale (ones when not ``scaled``)."""
-        s = np.asarray(scale, dtype=np.float64)
+        """(expected_tre, bound) for targets of the given scale (ones when not ``scaled``),
+        the scale raised to ``scale_floor`` where it is below."""
+        s = np.maximum(np.asarray(scale, dtype=np.float64), self.scale_floor)
         return self.median_factor * s, self.bound_factor * s
 
 
@@ -206,7 +215,8 @@ def error_model(cv: CrossValidation, method: str) -> ErrorModel:
     e = cv.errors[method]
     scaled = method != UNCORRECTED and cv.scale is not None and bool(np.all(cv.scale > 0))
     ratio = e / cv.scale if scaled else e
-    return ErrorModel(method, scaled, float(np.median(ratio)), conformal_quantile(ratio))
+    return ErrorModel(method, scaled, float(np.median(ratio)), conformal_quantile(ratio),
+                      scale_floor=float(np.min(cv.scale)) if scaled else 0.0)
 
 
 def _g(v: float) -> str:
