@@ -268,7 +268,7 @@ class FiducialAccumulator:
         """Clear, then commit ``records`` in order: the state after the same accepted
         measurements and enable changes, whatever the parameters were then. Rejection counters
         start from zero (rejections are not records). A record that fails the live value checks
-        (:meth:`check_record`: NaN, inf, beyond ±1e150, a bad id or stamp) or does not fit
+        (:meth:`check_record`: NaN, inf, beyond ±1e12, a bad id or stamp) or does not fit
         (another dimension, an enable change of an unknown id) is skipped.
 
         :return: one message per skipped record (empty when all fitted).

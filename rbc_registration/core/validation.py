@@ -8,8 +8,11 @@ from typing import Optional
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-#: Points farther than this from the origin are rejected: squaring them would overflow to inf.
-MAX_ABS_COORDINATE = 1e150
+#: Points farther than this from the origin are rejected, in any unit (1e12 mm is a million km).
+#: The restoration's sums of squared distances and qhull must not overflow or lose the cell: at
+#: 1e140 qhull crashed the process, at 1e50-1e90 it called a volume flat, at 1e110 sigma_L was
+#: NaN; every number up to 1e12 keeps a cell's spread above rounding.
+MAX_ABS_COORDINATE = 1e12
 
 
 def as_points(points: ArrayLike, name: str = "points", dim: Optional[int] = None,

@@ -66,7 +66,7 @@ def targets_to_array(targets: Sequence[PointStamped], working_frame: str,
     """Targets -> (points (K, dimension) for the model, z (K,) to pass through in 2D).
 
     :raises ValueError: naming the first target whose frame is not ``working_frame`` (an empty
-        frame_id means the working frame), or in 2D whose z is NaN, inf or beyond ±1e150.
+        frame_id means the working frame), or in 2D whose z is NaN, inf or beyond ±1e12.
     """
     for k, target in enumerate(targets):
         frame = target.header.frame_id

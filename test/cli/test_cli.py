@@ -90,12 +90,17 @@ def test_register_loo_closed_form_and_subsets(ra_files):
     (["register", "{few}"], "at least 4"),
     (["register", "{good}", "--steps", "1000000"], "must be in 1..20"),   # issue 11: bounds
     (["register", "{good}", "--steps", "0"], "steps must be a positive integer"),
+    (["register", "{huge}"], "row 3: column wx is out of range: '1e140'"),   # qhull crashed
 ])
 def test_bad_input_is_one_clear_line(tmp_path, ra_files, args, message):
     (tmp_path / "bad.csv").write_text("id,wx,wy,wz,dx,dy,dz\na,1,2,x,1,2,3\n")
     (tmp_path / "few.csv").write_text("id,wx,wy,wz,dx,dy,dz\na,0,0,0,0,0,0\nb,1,0,0,1,0,0\n"
                                       "c,0,1,0,0,1,0\n")
+    huge = ("1e140,0,0", "0,1e140,0", "0,0,1e140", "1e140,1e140,1e140")
+    (tmp_path / "huge.csv").write_text("id,wx,wy,wz,dx,dy,dz\na,0,0,0,0,0,0\n" + "".join(
+        f"{k},{p},{p}\n" for k, p in zip("bcde", huge)))
     files = {"bad": tmp_path / "bad.csv", "few": tmp_path / "few.csv",
+             "huge": tmp_path / "huge.csv",
              "good": ra_files[0] / "fiducials.csv"}
     proc = run(*[a.format(**files) for a in args], check=False)
     assert proc.returncode == 2

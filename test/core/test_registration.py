@@ -67,6 +67,8 @@ def test_weights_ignore_zero_weighted_outlier():
     pytest.param(np.zeros((4, 4)), np.zeros((4, 4)), "shape", id="4-columns"),
     pytest.param(np.array([[0, 0, 1e300], [1, 0, 0], [0, 1, 0]]), np.eye(3), "beyond",
                  id="1e300"),
+    pytest.param(np.array([[0, 0, 1e13], [1, 0, 0], [0, 1, 0]]), np.eye(3), "beyond ±1e\\+12",
+                 id="1e13"),
 ])
 def test_validation(x, y, message):
     with pytest.raises(ValueError, match=message):

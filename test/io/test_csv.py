@@ -65,6 +65,8 @@ H3 = "id,wx,wy,wz,dx,dy,dz\n"
     pytest.param(H3 + "a,1,2,nan,1,2,3\n", "not finite", id="nan"),
     pytest.param(H3 + "a,1,2,1e300,1,2,3\n", "row 2: column wz is out of range: '1e300'",
                  id="1e300"),
+    pytest.param(H3 + "a,1,2,-1e140,1,2,3\n", "row 2: column wz is out of range: '-1e140'",
+                 id="1e140"),
     pytest.param("id,wx,wy,wz,dx,dy\na,1,2,3,1,2\n", "mixed 2D/3D.*dz", id="mixed-2d-3d"),
     pytest.param(H3 + ",1,2,3,1,2,3\n", "column id is empty", id="empty-id"),
     pytest.param(H3 + "a,0,0,0,0,0,0\na,0,0,0,5,0,0\nb,1,1,1,1,1,1\n",
