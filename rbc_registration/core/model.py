@@ -32,6 +32,7 @@ from .kriging import KrigingHyperparameters, KrigingInterpolator, summarised
 from .noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
 from .registration import Registration, rigid_fit
 from .restoration import RestorationResult, restore_rigid_body
+from .scale import frame_mismatch
 from .validation import as_point_pairs, as_points, check_subset
 
 __all__ = ["INTERPOLATIONS", "Interpolator", "ModelConfig", "RbcModel", "TargetAnswer",
@@ -154,6 +155,9 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     :raises ValueError: on bad input or a degenerate fiducial configuration.
     """
     x, y = as_point_pairs(working, destination, config.dimension)
+    mismatch = frame_mismatch(x, y)
+    if mismatch is not None:
+        raise ValueError(mismatch)
     j = len(x)
     names = tuple(str(i) for i in range(j)) if ids is None else tuple(str(i) for i in ids)
     if len(names) != j:

@@ -1,5 +1,7 @@
-"""A likely unit mismatch between fiducials and targets (say fiducials in mm, targets in m):
-every target outside the fiducials' hull and the targets' scale off by a large factor."""
+"""Set-up errors the numbers show: a likely unit mismatch between fiducials and targets (say
+fiducials in mm, targets in m: every target outside the fiducials' hull and the targets' scale off
+by a large factor), and between the two frames of the fiducials (:func:`frame_mismatch`: one
+frame in another unit, or mirrored)."""
 
 from __future__ import annotations
 
@@ -12,6 +14,14 @@ from numpy.typing import ArrayLike
 #: their spread) this many times the fiducials' size (or this many times smaller): a likely
 #: unit mismatch (m vs mm is 1000, m vs cm 100).
 UNIT_MISMATCH_FACTOR = 100.0
+#: The fiducials' size (RMS distance from their centroid) in one frame this many times that in
+#: the other: a unit mismatch between the frames (in / cm is 2.54; real instruments' scale errors
+#: are below 1e-3, which the correction handles as bias).
+FRAME_SCALE_FACTOR = 2.0
+#: A reflection fitting the fiducials with an RMS residual this many times smaller than the best
+#: rotation: the destination frame is a mirror image of the working frame (a flat cell, which a
+#: reflection through its plane fits as well as a rotation, gives about 1).
+MIRROR_FACTOR = 10.0
 
 
 def _rms_radius(points: np.ndarray, centre: np.ndarray) -> float:
@@ -45,3 +55,37 @@ def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: ArrayLi
         return None
     return (f"all {len(t)} targets are outside the fiducials' hull and ~{ratio:.3g}x {how}: "
             "likely a unit mismatch between targets and fiducials (e.g. m vs mm)")
+
+
+def frame_mismatch(working: ArrayLike, destination: ArrayLike) -> Optional[str]:
+    """Why the two frames of the fiducials cannot be related by a rigid motion, when it is plain.
+
+    :param working: fiducials in the working frame (J, d), validated.
+    :param destination: the same fiducials in the destination frame (J, d).
+    :return: one line (the frames' sizes differ by :data:`FRAME_SCALE_FACTOR` or more: a unit
+        mismatch; or a reflection fits :data:`MIRROR_FACTOR` times better than any rotation: a
+        mirrored frame), else ``None``.
+    """
+    x = np.asarray(working, dtype=float)
+    y = np.asarray(destination, dtype=float)
+    xc, yc = x - x.mean(axis=0), y - y.mean(axis=0)
+    sx, sy = _rms_radius(xc, 0.0), _rms_radius(yc, 0.0)
+    if not (sx > 0 and sy > 0):
+        return None                      # coincident points: the registration says so
+    ratio = sy / sx
+    if not 1 / FRAME_SCALE_FACTOR < ratio < FRAME_SCALE_FACTOR:
+        return (f"the destination fiducials are {ratio:.4g}x the size of the working fiducials "
+                f"(RMS distance from their centroid {sy:.6g} against {sx:.6g}): likely the "
+                "frames are in different units (e.g. m vs mm); a rigid registration needs one")
+    u, sv, vt = np.linalg.svd(xc.T @ yc)
+    if np.linalg.det(u @ vt) >= 0:
+        return None
+    flip = np.ones(len(sv))
+    flip[-1] = -1.0
+    mirrored = _rms_radius(xc @ (u @ vt) - yc, 0.0)           # the best orthogonal map
+    rotated = _rms_radius(xc @ (u * flip @ vt) - yc, 0.0)     # the best rotation
+    if rotated <= MIRROR_FACTOR * mirrored + 1e-12 * max(sx, sy):
+        return None
+    return (f"the destination frame looks mirrored against the working frame: a reflection fits "
+            f"the fiducials with RMS residual {mirrored:.3g}, the best rotation only "
+            f"{rotated:.3g}; check the handedness of the frames' axes")
