@@ -8,6 +8,11 @@ Each stream is assumed to arrive in stamp order (as a driver publishes it). A bu
 *stale* once the other stream has delivered a stamp later than ``stamp + slop``: no later point
 of that stream can match it any more, so it is dropped and reported. Buffers are bounded
 (``max_buffer`` per stream, oldest dropped first).
+
+A stream that goes back in time by more than ``slop`` (one point stamped far in the future, or
+a driver restarted with a new clock) starts again from the new stamp: its buffered points later
+than it are dropped as out of order, and its latest stamp is the new one. Otherwise a single
+future stamp would make every later point of the other stream look stale until a reset.
 """
 
 from __future__ import annotations
@@ -134,8 +139,10 @@ class StampPairer:
             raise ValueError(f"{stream} point stamp must be finite, got {stamp_s!r}")
         point = StampedPoint((float(arr[0]), float(arr[1]), float(arr[2])), str(frame_id), stamp)
         other = _OTHER[stream]
-        self._latest[stream] = max(self._latest[stream], stamp)
         dropped: list[DroppedPoint] = []
+        if stamp < self._latest[stream] - self._slop:       # the stream went back in time
+            self._restart(stream, stamp, dropped)
+        self._latest[stream] = max(self._latest[stream], stamp)
         # Points of the other stream older than stamp - slop cannot match this or later points.
         self._drop_stale(other, dropped)
         pairs: tuple[PointPair, ...] = ()
@@ -156,6 +163,19 @@ class StampPairer:
                                             f"({self.max_buffer} unmatched points)"))
         self.n_dropped += len(dropped)
         return PairingResult(pairs, tuple(dropped))
+
+    def _restart(self, stream: str, stamp: float, dropped: list[DroppedPoint]) -> None:
+        """``stream`` from ``stamp`` on (module docstring): its points after it dropped."""
+        keep = deque()
+        for old in self._buffers[stream]:
+            if old.stamp_s > stamp + self._slop:
+                dropped.append(DroppedPoint(stream, old, f"stamp {old.stamp_s:.9f} is out of "
+                                            f"order: a later {stream} point has stamp "
+                                            f"{stamp:.9f}"))
+            else:
+                keep.append(old)
+        self._buffers[stream] = keep
+        self._latest[stream] = max((p.stamp_s for p in keep), default=stamp)
 
     def _drop_stale(self, stream: str, dropped: list[DroppedPoint]) -> None:
         buf = self._buffers[stream]

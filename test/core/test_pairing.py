@@ -91,3 +91,33 @@ def test_clear():
     p.clear()
     assert p.pending("working") == 0
     assert len(p.add_working([0, 0, 0], "tracker", 1.0).pairs) == 0  # no stale horizon left
+
+
+@pytest.mark.parametrize("poisoned", ["working", "destination"])
+def test_one_future_stamp_does_not_stop_the_pairing(poisoned):
+    """A point stamped 2**31 s (or a driver restarted with another clock) was kept as the
+    stream's latest stamp, so every later point of the other stream looked stale: 0 of 20 pairs
+    until a reset. The stream now restarts from its next point; at most the pair in flight is
+    lost, and the future point is dropped as out of order."""
+    p = StampPairer(slop=0.02)
+    p.add(poisoned, [9, 9, 9], "f", 2.0 ** 31)
+    first, second = ("destination", "working") if poisoned == "working" else (
+        "working", "destination")
+    pairs, dropped = [], []
+    for k in range(20):
+        for stream in (first, second):
+            res = p.add(stream, [k, 0, 0], "f", 100.0 + k)
+            pairs += res.pairs
+            dropped += res.dropped
+    assert len(pairs) >= 19
+    assert all(pr.working.xyz == pr.destination.xyz for pr in pairs)
+    assert any(d.point.stamp_s == 2.0 ** 31 and "out of order" in d.reason for d in dropped)
+    assert p.pending("working") == p.pending("destination") == 0
+
+
+def test_points_slightly_out_of_order_within_the_slop_still_pair():
+    p = StampPairer(slop=0.02)
+    p.add_working([1, 0, 0], "t", 10.010)
+    p.add_working([2, 0, 0], "t", 10.000)     # back by less than the slop: no restart
+    assert p.pending("working") == 2
+    assert p.add_destination([1, 0, 0], "w", 10.011).pairs[0].working.xyz == (1, 0, 0)
