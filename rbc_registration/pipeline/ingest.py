@@ -176,18 +176,22 @@ class Ingest:
             return True, f"fiducial {fiducial_id!r} {word}; the model is rebuilt after debounce"
 
     def reset(self) -> tuple[bool, str]:
-        """Forget all measurements; the journal is archived. Returns (success, message)."""
+        """Forget all measurements; the journal is archived first. Returns (success,
+        message): when archiving fails nothing is forgotten (the journal would bring the
+        measurements back on the next start), and the journal stays open."""
         with self._lock:
+            archived = None
+            if self._journal is not None:
+                try:
+                    archived = self._journal.archive()
+                except OSError as exc:
+                    return False, (f"nothing forgotten: archiving the journal failed: {exc}")
             self._acc.clear()
             self._pairer.clear()
             self.n_journal_failures = 0
+            self.journal_error = ""
             if self._journal is None:
                 return True, "all measurements forgotten"
-            try:
-                archived = self._journal.archive()
-            except OSError as exc:
-                self.journal_error = str(exc)
-                return False, f"measurements forgotten, but archiving the journal failed: {exc}"
             return True, f"all measurements forgotten; journal archived as {archived}"
 
     def configure(self, settings: Settings) -> None:

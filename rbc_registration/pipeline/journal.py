@@ -198,7 +198,8 @@ class Journal:
 
     def _write(self, data: bytes) -> None:
         """Append ``data`` (whole lines) in full, or raise ``OSError`` leaving the file as is."""
-        assert self._fd is not None, "journal is not open: call load() first"
+        if self._fd is None:
+            raise OSError(f"{self.path}: the journal is not open")
         if self._dirty:                      # cut off what a failed write left, before appending
             os.ftruncate(self._fd, self._size)
             self._dirty = False
@@ -240,16 +241,18 @@ class Journal:
         """Move the journal (and snapshot) aside as ``*.<UTC time>.bak`` and start a new one.
 
         :return: the archived journal's path, or ``None`` when there was none.
+        :raises OSError: when a file cannot be moved; the journal then stays as it was, open
+            for appending (the snapshot may be archived already: the next model rewrites it).
         """
-        self.close()
         suffix = _stamp()
         archived = None
-        for name in (JOURNAL_NAME, SNAPSHOT_NAME):
+        for name in (SNAPSHOT_NAME, JOURNAL_NAME):       # the journal last: it is the record
             path = os.path.join(self.state_dir, name)
             if os.path.exists(path):
-                os.replace(path, f"{path}.{suffix}.bak")
+                os.replace(path, f"{path}.{suffix}.bak")  # an open file moves with its fd
                 if name == JOURNAL_NAME:
                     archived = f"{path}.{suffix}.bak"
+        self.close()
         fsync_dir(self.state_dir)
         self._open(truncate_to=0)
         return archived

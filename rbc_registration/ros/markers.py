@@ -28,7 +28,10 @@ def _color(r: float, g: float, b: float, a: float = 1.0) -> ColorRGBA:
 
 def _xyz(points: np.ndarray) -> np.ndarray:
     """(J, 2|3) -> (J, 3), z = 0 in 2D."""
-    points = np.asarray(points, dtype=np.float64).reshape(len(points), -1)
+    points = np.asarray(points, dtype=np.float64)
+    if points.size == 0:                # no fiducials (e.g. the first rebuild after ~/reset)
+        return np.empty((0, 3))
+    points = points.reshape(len(points), -1)
     return points if points.shape[1] == 3 else np.column_stack([points, np.zeros(len(points))])
 
 

@@ -101,6 +101,9 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self._build = build
         self._write_snapshot = write_snapshot
         self._pub_lock = threading.Lock()
+        # ~/reset against the snapshot thread: a snapshot is written only while its generation
+        # is current, and the reset archives the files and bumps the generation under it.
+        self._snapshot_lock = threading.Lock()
         self._health = HealthMonitor(s.stale_after)  # /diagnostics levels (pipeline.health)
         self._state: ModelState = EMPTY_STATE
         self._generation = 0  # bumped by ~/reset: a rebuild of an older generation is dropped
@@ -216,7 +219,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             self._state = state
         if state.error:
             self.get_logger().warning(state.error)
-        self._publish_model(state, disabled_points)
+        self._publish_model(state, disabled_points, generation)
 
     def _on_worker_error(self, exc: BaseException) -> None:
         self.get_logger().error(f"recompute failed: {type(exc).__name__}: {exc}")

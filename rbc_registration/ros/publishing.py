@@ -21,7 +21,8 @@ class PublishingMixin:
     """Publishing of a new model and of the status; the node provides the publishers
     (``_pub_transform``, ``_pub_transform_u``, ``_pub_markers``, ``_pub_status``,
     ``_pub_diagnostics``), ``_pub_lock``, ``_tf`` (:class:`~.tf_static.StaticTf`), ``_settings``,
-    ``_state``, ``_ingest``, ``_health``, ``_snapshots``, ``_write_snapshot`` and, from
+    ``_state``, ``_generation``, ``_ingest``, ``_health``, ``_snapshots``, ``_snapshot_lock``,
+    ``_write_snapshot`` and, from
     :class:`~.planning.PlanningMixin`, ``_plan_model`` and ``_expected_target_error``."""
 
     _settings: Any
@@ -38,6 +39,8 @@ class PublishingMixin:
     _tf_transforms: dict
     _loaded: Any
     _snapshots: Any
+    _snapshot_lock: Any
+    _generation: int
     _write_snapshot: Any
     _plan_model: Any
     _expected_target_error: Any
@@ -45,14 +48,17 @@ class PublishingMixin:
     get_logger: Any
     get_name: Any
 
-    def _publish_model(self, state: ModelState,
-                       disabled_points: Mapping[str, Sequence[float]]) -> None:
-        """Publish a new model (recompute thread). The markers are built before the publishing
-        lock is taken: the executor's status timer takes that lock too."""
+    def _publish_model(self, state: ModelState, disabled_points: Mapping[str, Sequence[float]],
+                       generation: int) -> None:
+        """Publish a new model of ``generation`` (recompute thread), unless ``~/reset`` has
+        bumped the generation since. The markers are built before the publishing lock is taken:
+        the executor's status timer takes that lock too."""
         s = self._settings
         now = self.get_clock().now().to_msg()
         markers = markers_msg(state, s, now, disabled_points)
         with self._pub_lock:
+            if generation != self._generation:
+                return          # reset meanwhile: neither /tf_static nor a snapshot of it
             if state.model is not None:
                 corrected = conv.registration_to_transform(
                     state.model.corrected, s.destination_frame, s.working_frame, now)
@@ -67,7 +73,7 @@ class PublishingMixin:
         self._publish_status()
         self._plan_model(state)   # ~/status expected_target_error follows from its thread
         if s.state_dir:
-            self._snapshots.submit(state)   # serialised and written in its own thread
+            self._snapshots.submit((state, generation))   # serialised and written in its thread
 
     def _on_snapshot_error(self, exc: BaseException) -> None:
         # e.g. disk full: the journal still holds every measurement
@@ -102,9 +108,14 @@ class PublishingMixin:
             self._pub_diagnostics.publish(diagnostics_msg(status, self.get_name(),
                                                           status.header.stamp, health))
 
-    def _save(self, state: ModelState) -> str:
+    def _save(self, item: tuple[ModelState, int]) -> str:
+        """Write the snapshot of ``(state, generation)`` unless ``~/reset`` came since."""
+        state, generation = item
         s = self._settings
         path = snapshot_path(s.state_dir)
-        self._write_snapshot(path, snapshot_json(state, s.working_frame, s.destination_frame,
-                                                 s.dimension))
+        text = snapshot_json(state, s.working_frame, s.destination_frame, s.dimension)
+        with self._snapshot_lock:
+            if generation != self._generation:
+                return ""
+            self._write_snapshot(path, text)
         return path

@@ -44,8 +44,9 @@ def rebuild_requested_ns(message: str) -> int:
 
 class ServicesMixin:
     """Service callbacks; the node provides ``_state``, ``_settings``, ``_ingest``, ``_worker``,
-    ``_pub_lock``, ``_generation``, ``_pub_markers``, ``_publish_status`` and ``_snapshots``
-    (a :class:`~rbc_registration.pipeline.worker.LatestWriter` of snapshots)."""
+    ``_pub_lock``, ``_generation``, ``_snapshot_lock``, ``_pub_markers``, ``_publish_status``
+    and ``_snapshots`` (a :class:`~rbc_registration.pipeline.worker.LatestWriter` of
+    ``(state, generation)``)."""
 
     _state: Any
     _settings: Any
@@ -53,6 +54,7 @@ class ServicesMixin:
     _worker: Any
     _pub_lock: Any
     _generation: int
+    _snapshot_lock: Any
     _pub_markers: Any
     _tf_transforms: dict
     _loaded: Any
@@ -126,13 +128,16 @@ class ServicesMixin:
         return response
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        with self._pub_lock:
-            self._generation += 1
-            self._state = EMPTY_STATE
-            self._tf_transforms = {}
-            self._loaded = None  # a calibration_file is forgotten too
-            self._publish_tf()  # /tf_static without this node's child frame
-        response.success, response.message = self._ingest.reset()
+        with self._snapshot_lock:      # no snapshot of the old generation after the archive
+            response.success, response.message = self._ingest.reset()
+            if not response.success:   # the journal could not be archived: nothing forgotten
+                return response
+            with self._pub_lock:
+                self._generation += 1  # a rebuild under way is neither served nor published
+                self._state = EMPTY_STATE
+                self._tf_transforms = {}
+                self._loaded = None  # a calibration_file is forgotten too
+                self._publish_tf()  # /tf_static without this node's child frame
         self._publish_status()
         with self._pub_lock:
             self._pub_markers.publish(markers_msg(EMPTY_STATE, self._settings,
@@ -161,7 +166,7 @@ class ServicesMixin:
         state = self._state
         snapshot = snapshot_path(self._settings.state_dir)
         previous = self._snapshots.last_error
-        self._snapshots.submit(state)   # serialised and written in the snapshot thread
+        self._snapshots.submit((state, self._generation))   # written in the snapshot thread
         note = f"snapshot queued as {snapshot}" + (
             f" (the previous snapshot write failed: {previous})" if previous else "")
         try:

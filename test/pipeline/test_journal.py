@@ -274,3 +274,42 @@ def test_a_real_file_size_limit_keeps_exactly_the_accepted_records(tmp_path):
     loaded, warnings = Journal(str(tmp_path), HEADER).load()
     assert warnings == [] and [r.fiducial_id for r in loaded] == [f"H{k}" for k in
                                                                   range(accepted)]
+
+
+def test_a_failed_archive_leaves_the_journal_open_and_reset_forgets_nothing(tmp_path,
+                                                                            monkeypatch):
+    """~/reset with a journal that cannot be moved (a review: an immutable state_dir): the
+    journal was closed first and never reopened, so every later pair was dropped with an
+    AssertionError no counter showed, and the memory (cleared) and the journal (kept)
+    disagreed. Now nothing is forgotten and appends go on."""
+    from rbc_registration.core.pairing import StampPairer
+    from rbc_registration.pipeline.ingest import Ingest
+
+    acc = FiducialAccumulator(3, "tracker", "world", 0.005, 0.0)
+    journal = Journal(str(tmp_path), HEADER)
+    journal.load()
+    ingest = Ingest(acc, StampPairer(0.02), journal, logger=None)
+    rec = acc.prepare("H1", [0.1, 0.2, 0.3], [1.0, 2.0, 3.0])
+    journal.append(rec)
+    acc.commit(rec)
+    real_replace = os.replace
+
+    def refuse(src, dst):
+        raise PermissionError(errno.EPERM, "Operation not permitted", src)
+
+    monkeypatch.setattr(os, "replace", refuse)
+    ok, message = ingest.reset()
+    assert not ok and message.startswith("nothing forgotten: archiving the journal failed")
+    assert acc.fiducial_set().ids == ("H1",)
+    monkeypatch.setattr(os, "replace", real_replace)
+    journal.append(records()[1])                     # still open
+    journal.close()
+    assert Journal(str(tmp_path), HEADER).load()[0] == [rec, records()[1]]
+
+
+def test_appending_to_a_closed_journal_is_an_os_error(tmp_path):
+    j = Journal(str(tmp_path), HEADER)
+    j.load()
+    j.close()
+    with pytest.raises(OSError, match="the journal is not open"):
+        j.append(records()[0])

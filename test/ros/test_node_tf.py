@@ -3,6 +3,8 @@ type, built from vendor/tf2_msgs) holds the newest registration for its child fr
 rebuild, the one tf_broadcast chooses, and nothing of it after a reset. Each check subscribes
 anew after the fact (a late joiner), from a node other than the publisher."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -98,3 +100,54 @@ class TestTfFollowsTheModel(NodeTestBase):
         np.testing.assert_allclose(transform_to_matrix(transform), _matrix(model.corrected),
                                    atol=1e-12)
         assert self.ros.client.count_publishers(TOPIC) == 0
+
+
+class TestResetDuringARebuild(NodeTestBase):
+
+    def tf_entry(self, node):
+        msg = self.latest(node, TFMessage, TOPIC, qos=STATIC_QOS)
+        return next((t for t in msg.transforms if t.child_frame_id == "tracker"), None)
+
+    def test_a_model_swapped_in_before_a_reset_is_neither_published_nor_saved(
+            self, tmp_path, monkeypatch):
+        """~/reset while a new model is being published (its markers take ~40 ms at 3,000
+        fiducials): the forgotten model used to reach /tf_static and calibration.json after the
+        reset (a review: 4 and 5 of 5 trials). Here the publication is held, after the model
+        was swapped in, until the reset has answered."""
+        import threading
+
+        from rbc_registration.ros import publishing
+
+        held, release = threading.Event(), threading.Event()
+        hold = {"on": False}
+        markers = publishing.markers_msg
+
+        def slow_markers(*args, **kwargs):
+            if hold["on"]:
+                held.set()
+                assert release.wait(30)
+            return markers(*args, **kwargs)
+
+        monkeypatch.setattr(publishing, "markers_msg", slow_markers)
+        node = self.make_node(state_dir=str(tmp_path), tf_broadcast="corrected")
+        self.stream(node, range(16))
+        assert self.recompute(node).model is not None
+        assert self.tf_entry(node) is not None
+        hold["on"] = True
+        self.stream(node, range(16, self.n))
+        self.srv(node, Trigger, "recompute")
+        assert held.wait(30)               # the new model is served, its publication under way
+        snapshot = tmp_path / "calibration.json"
+        r = self.srv(node, Trigger, "reset")
+        assert r.success, r.message
+        assert not snapshot.exists()       # archived by the reset
+        hold["on"] = False
+        release.set()
+        assert node._worker.wait(node._worker.request_now(), 30)   # the held one is done too
+        assert node._snapshots.wait_idle(10)
+        assert node.state.model is None and not node.status().model_valid
+        assert self.tf_entry(node) is None
+        if snapshot.exists():              # the rebuild after the reset: nothing of before
+            saved = json.loads(snapshot.read_text())
+            assert not saved["model_valid"] and saved["n_measurements"] == 0
+            assert saved["fiducial_ids"] == []
