@@ -72,9 +72,10 @@ def run(args: argparse.Namespace) -> int:
     fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance)
     for note in fid.notes:
         warn("plan", note)
-    cand = read_targets(args.candidates, fid.dimension, args.outlier_distance, "candidate")
-    tgt = read_targets(args.targets, fid.dimension, args.outlier_distance) if args.targets \
-        else None
+    cand = read_targets(args.candidates, fid.dimension, args.outlier_distance, "candidate",
+                        fid.working)
+    tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,
+                       fiducials=fid.working) if args.targets else None
     count = min(DEFAULT_COUNT, len(cand.ids)) if args.count is None else args.count
     model = build_model(fid.working, fid.destination, model_config(args, fid.dimension),
                         ids=fid.ids, working_repeats=fid.working_repeats)

@@ -77,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = model_config(args, fid.dimension, fid.ids)
     model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
                         working_repeats=fid.working_repeats)
-    tgt = read_targets(args.targets, fid.dimension, args.outlier_distance) if args.targets \
-        else None
+    tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,
+                       fiducials=fid.working) if args.targets else None
     loo = leave_one_out(model) if args.loo else None
     report = model_report(model, tgt.ids if tgt else (), tgt.working if tgt else None,
                           tgt.destination if tgt else None, loo, args.unit)

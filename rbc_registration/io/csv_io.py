@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Optional, Union
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..core.constants import DIMENSIONS
 from ..core.repeats import repeat_outlier, typical_spacing
@@ -174,17 +174,21 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
 
 
 def _repeat_limits(first_rows: list[list[list[float]]], outlier_distance: Optional[float],
-                   kind: str = "fiducial") -> tuple[tuple[float, str], ...]:
+                   kind: str = "fiducial", fallback_spacing: float = 0.0
+                   ) -> tuple[tuple[float, str], ...]:
     """(limit, how it is named) for each frame of ``first_rows`` (the ids' first rows in it,
     e.g. working and destination): ``outlier_distance``, else :data:`CONFLICT_FRACTION` x the
-    typical spacing of those rows (``kind``: what the ids are, for the name)."""
+    typical spacing of those rows (``kind``: what the ids are, for the name), or of the
+    fiducials (``fallback_spacing``) when the rows are fewer than two distinct points."""
     if outlier_distance is not None:
         return ((float(outlier_distance), "outlier_distance"),) * len(first_rows)
     out = []
     for points in first_rows:
-        spacing = typical_spacing(points)
+        spacing, whose = typical_spacing(points), kind
+        if spacing <= 0 and fallback_spacing > 0:
+            spacing, whose = fallback_spacing, "fiducial"
         out.append((CONFLICT_FRACTION * spacing,
-                    f"{CONFLICT_FRACTION:g} x the {kind} spacing {spacing:.6g} ="))
+                    f"{CONFLICT_FRACTION:g} x the {whose} spacing {spacing:.6g} ="))
     return tuple(out)
 
 
@@ -213,7 +217,7 @@ def _checked_repeats(path: PathLike, fid: str, group: list[tuple[int, list[float
 
 
 def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = None,
-                 kind: str = "target") -> TargetTable:
+                 kind: str = "target", fiducials: Optional[ArrayLike] = None) -> TargetTable:
     """Read TARGETS.csv: ``id,wx,wy[,wz]`` and optionally ``dx,dy[,dz]`` (truth).
 
     Rows sharing an id are repeated measurements of one point and are averaged. A row farther
@@ -223,8 +227,10 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
 
     :param outlier_distance: the limit in the file's unit; 0 switches the check off; ``None``:
         :data:`CONFLICT_FRACTION` x the typical spacing of the file's ids (their first rows) in
-        each frame.
+        each frame, or of ``fiducials`` when the file's ids are at fewer than two places (one
+        target id: its repeats still must agree).
     :param kind: what the ids are, named in messages (``target``, ``candidate``).
+    :param fiducials: the fiducials' working-frame points (their spacing is that fallback).
     :raises CsvError: naming the file, row and column of the first problem.
     """
     header, rows = _read_rows(path, ["id", "wx", "wy"] + (["wz"] if dim == 3 else []))
@@ -245,8 +251,9 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
             truth.append([_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes])
     first = [index[0] for index in rows_by_id(tids).values()]
     named = [("working", work)] + ([("truth", truth)] if has_truth else [])
+    fallback = typical_spacing(fiducials) if fiducials is not None else 0.0
     limits = _repeat_limits([[points[k] for k in first] for _, points in named],
-                            outlier_distance, kind)
+                            outlier_distance, kind, fallback)
     conflict = first_conflict(tids, [(frame, points, *limit)
                                      for (frame, points), limit in zip(named, limits)], kind)
     if conflict is not None:

@@ -168,6 +168,19 @@ def test_target_repeats_far_apart_are_refused(tmp_path, extra, kind, message):
         read_targets(write(tmp_path, TARGETS + extra), 3, kind=kind)
 
 
+def test_one_target_id_far_apart_is_refused_by_the_fiducial_spacing(tmp_path):
+    """One id (no spacing of the file's own ids): the rows were averaged whatever their
+    distance (a review: 400 mm apart). The fiducials' spacing sets the limit then."""
+    path = write(tmp_path, "id,wx,wy,wz\na,500,500,500\na,500,500,900\n")
+    fiducials = np.array([[0, 0, 0], [100, 0, 0], [0, 100, 0], [0, 0, 100.0]])
+    with pytest.raises(CsvError, match=r"row 3: target 'a': working point is 400 .*0.25 x the "
+                                       r"fiducial spacing 100 = 25"):
+        read_targets(path, 3, fiducials=fiducials)
+    near = write(tmp_path, "id,wx,wy,wz\na,500,500,500\na,500,500,501\n")
+    np.testing.assert_allclose(read_targets(near, 3, fiducials=fiducials).working[0],
+                               [500, 500, 500.5])
+
+
 def test_target_truth_conflict_and_the_given_limit(tmp_path):
     text = "id,wx,wy,dx,dy\na,0,0,5,5\nb,100,0,105,5\na,0.01,0,9,5\n"
     with pytest.raises(CsvError, match=r"conflicting truth points: row 4: target 'a': truth "
