@@ -10,12 +10,16 @@ from .constants import (INTERPOLATIONS, MAX_RESTORATION_STEPS, DecisionMode,
                         check_rho_thresholds)
 from .noise import point_sigma
 from .restoration import METHODS
+from .validation import MAX_ABS_COORDINATE
 
 
 def _check_length(name: str, value: Optional[float]) -> None:
     if value is not None and (not isinstance(value, (int, float)) or not math.isfinite(value)
                               or value <= 0):
         raise ValueError(f"{name} must be a positive finite length or None, got {value!r}")
+    if value is not None and value > MAX_ABS_COORDINATE:     # its square must stay finite
+        raise ValueError(f"{name} must be at most {MAX_ABS_COORDINATE:g} (the coordinate "
+                         f"limit), got {value!r}")
 
 
 @dataclass(frozen=True)

@@ -52,6 +52,7 @@ def test_subsets_as_in_the_paper(ra):
     pytest.param({"sigma": 0.0}, "sigma must be a positive finite length or None, got 0.0",
                  id="zero-sigma"),
     pytest.param({"sigma": float("nan")}, "sigma", id="nan-sigma"),
+    pytest.param({"sigma_axis": 2e154}, r"sigma_axis must be at most 1e\+12", id="huge-sigma"),
     pytest.param({"rho_reject": 3.0}, r"rho_reject \(3\) must be <= rho_apply \(2.5\)",
                  id="rho-order"),
     pytest.param({"rho_apply": -1.0}, "rho_apply", id="negative-rho")])
