@@ -107,9 +107,14 @@ def check_number(name: str, value: Any) -> float:
     """A finite real number (not a bool, not a string)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ValueError(f"{name}: must be a number, got {_quote(value)}")
-    if not math.isfinite(value):
+    try:
+        v = float(value)
+    except OverflowError:                # an integer of hundreds of digits
+        raise ValueError(f"{name}: out of range, got an integer of {len(str(value))} "
+                         f"digits") from None
+    if not math.isfinite(v):
         raise ValueError(f"{name}: must be finite, got {value!r}")
-    return float(value)
+    return v
 
 
 def check_length(name: str, value: Any) -> float:

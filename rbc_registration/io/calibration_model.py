@@ -18,6 +18,7 @@ from ..pipeline.settings import Settings
 from ..pipeline.snapshot import SNAPSHOT_FORMAT
 from ..pipeline.state import ModelState
 from .calibration import REGISTRATIONS, Calibration, Decision, calibration_from_registration
+from .calibration_format import check_number
 
 #: The calibration file ``~/save`` writes into ``state_dir``.
 CALIBRATION_NAME = "calibration.yaml"
@@ -54,7 +55,9 @@ def _document_decision(data: Mapping[str, Any], where: str,
         median = d["cv"].get(d["method"], {}).get("median")
     except (KeyError, TypeError, AttributeError):
         raise ValueError(f"{where}: decision: needs mode, method, apply, reason and cv") from None
-    return record, None if median is None else scale * median
+    if median is None:
+        return record, None
+    return record, scale * check_number(f"{where}: decision: cv: {d['method']}: median", median)
 
 
 def calibration_from_state(state: ModelState, settings: Settings, registration: str,
@@ -82,9 +85,28 @@ def calibration_from_state(state: ModelState, settings: Settings, registration: 
 
 
 def _get(data: Mapping[str, Any], key: str, where: str) -> Any:
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{where}: not a JSON object where {key} is expected")
     if key not in data or data[key] is None:
         raise ValueError(f"{where}: {key}: missing")
     return data[key]
+
+
+def _number(data: Mapping[str, Any], key: str, where: str) -> float:
+    """``data[key]``, a finite number (:func:`.calibration_format.check_number`)."""
+    return check_number(f"{where}: {key}", _get(data, key, where))
+
+
+def _numbers(data: Mapping[str, Any], key: str, where: str) -> list[float]:
+    """``data[key]``, a list of finite numbers."""
+    values = _get(data, key, where)
+    if not isinstance(values, list):
+        raise ValueError(f"{where}: {key}: must be a list of numbers, got {type(values).__name__}")
+    return [check_number(f"{where}: {key}[{k}]", v) for k, v in enumerate(values)]
+
+
+#: The latest ``stamp_ns`` a snapshot can have (the year 9999).
+_LAST_STAMP_NS = 253402300799 * 10**9
 
 
 def calibration_from_document(data: Any, where: str, registration: str = "corrected", *,
@@ -114,28 +136,40 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
         scale = 1.0
         parent = parent_frame or _get(data, "destination_frame", where)
         child = child_frame or _get(data, "working_frame", where)
-        created_s = _get(data, "stamp_ns", where) * 1e-9
-        n_fiducials = len(_get(data, "fiducial_ids", where))
-        sigma_l = _get(data, "sigma_l", where)
+        stamp_ns = _number(data, "stamp_ns", where)
+        if not 0 <= stamp_ns <= _LAST_STAMP_NS:
+            raise ValueError(f"{where}: stamp_ns: out of range (0 to the year 9999), got "
+                             f"{stamp_ns:g}")
+        created_s = stamp_ns * 1e-9
+        ids = _get(data, "fiducial_ids", where)
+        if not isinstance(ids, list):
+            raise ValueError(f"{where}: fiducial_ids: must be a list, got {type(ids).__name__}")
+        n_fiducials = len(ids)
+        sigma_l = _numbers(data, "sigma_l", where)
     else:
         label = unit or _get(data, "unit", where)
-        if label not in METRES_PER_UNIT:
+        if not isinstance(label, str) or label not in METRES_PER_UNIT:
             raise ValueError(f"{where}: unit {label!r}: a calibration is in metres; export "
                              f"converts {', '.join(METRES_PER_UNIT)} (give --unit)")
         scale = METRES_PER_UNIT[label]
         parent, child = parent_frame or "world", child_frame or "tracker"
         created_s = time.time() if mtime is None else mtime
         n_fiducials = _get(data, "n_fiducials", where)
-        sigma_l = _get(data, "sigma_L", where)
+        sigma_l = _numbers(data, "sigma_L", where)
     reg = _get(data, registration, where)
-    sigma = data.get("sigma")
+    sigma = None if data.get("sigma") is None else _number(data, "sigma", where)
     decision, tre = _document_decision(data, where, scale)
+    at = f"{where}: {registration}"
+    rotation = _get(reg, "rotation", at)
+    translation = [scale * v for v in _numbers(reg, "translation", at)]
+    fre_rms = scale * _number(reg, "fre_rms", at)
+    if isinstance(n_fiducials, bool) or not isinstance(n_fiducials, int):
+        raise ValueError(f"{where}: n_fiducials: must be an integer, got {n_fiducials!r}")
     try:
         return calibration_from_registration(
-            _get(reg, "rotation", f"{where}: {registration}"),
-            [scale * v for v in _get(reg, "translation", f"{where}: {registration}")],
+            rotation, translation,
             parent_frame=parent, child_frame=child, registration=registration,
-            fre_rms=scale * _get(reg, "fre_rms", f"{where}: {registration}"),
+            fre_rms=fre_rms,
             decision=decision, sigma=None if sigma is None else scale * sigma,
             sigma_l=[scale * v for v in sigma_l], expected_tre=tre, n_fiducials=n_fiducials,
             clock=lambda: created_s)

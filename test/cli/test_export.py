@@ -123,6 +123,56 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, content, message):
     assert not (tmp_path / "x.yaml").exists()
 
 
+REPORT = {"unit": "mm", "n_fiducials": 5, "sigma_L": [1.0], "sigma": 0.1,
+          "decision": {"mode": "cv", "method": "kriging", "apply": True, "reason": "r",
+                       "cv": {"kriging": {"median": 0.01}}},
+          "corrected": {"rotation": [[1, 0], [0, 1]], "translation": [0, 0], "fre_rms": 0}}
+
+
+@pytest.mark.parametrize("path, value, message", [
+    (("unit",), ["mm"], "unit ['mm']: a calibration is in metres"),
+    (("decision", "cv", "kriging", "median"), "x",
+     "decision: cv: kriging: median: must be a number, got 'x'"),
+    (("corrected", "translation"), [0, 10 ** 400],
+     "corrected: translation[1]: out of range, got an integer of 401 digits"),
+    (("corrected", "fre_rms"), 10 ** 400, "corrected: fre_rms: out of range"),
+    (("corrected",), [1, 2], "corrected: not a JSON object where rotation is expected"),
+    (("sigma",), "x", "sigma: must be a number, got 'x'"),
+    (("sigma_L",), 3, "sigma_L: must be a list of numbers, got int"),
+    (("n_fiducials",), "5", "n_fiducials: must be an integer, got '5'"),
+])
+def test_an_edited_report_is_one_line_exit_2(tmp_path, capsys, path, value, message):
+    """Fields of the wrong type or size gave tracebacks (TypeError, OverflowError)."""
+    data = json.loads(json.dumps(REPORT))
+    parent = data
+    for key in path[:-1]:
+        parent = parent[key]
+    parent[path[-1]] = value
+    src = tmp_path / "in.json"
+    src.write_text(json.dumps(data))
+    assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rbc-registration export: error: ") and message in err, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("stamp_ns", "x", "stamp_ns: must be a number, got 'x'"),
+    ("stamp_ns", 1e300, "stamp_ns: out of range (0 to the year 9999)"),
+    ("fiducial_ids", 5, "fiducial_ids: must be a list, got int"),
+])
+def test_an_edited_snapshot_is_one_line_exit_2(tmp_path, capsys, node_state, field, value,
+                                               message):
+    state, settings = node_state
+    data = json.loads(snapshot_json(state, "laser", "base", 3))
+    data[field] = value
+    src = tmp_path / "calibration.json"
+    src.write_text(json.dumps(data))
+    assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_missing_file(tmp_path, capsys):
     assert cli.main(["export", str(tmp_path / "nope.json")]) == 2
     assert "cannot be read" in capsys.readouterr().err

@@ -234,6 +234,8 @@ RULES = [
     ({"created": "2025-06-01T12:00:00+02:00"}, "created: must be in UTC (ending in Z or +00:00)"),
     ({"created": "2025-06-01T12:00:00"}, "created: must be in UTC (ending in Z or +00:00)"),
     ({"package_version": 1.0}, "package_version: must be a string, got 1.0"),
+    ({"translation.x": 10 ** 400}, "translation.x: out of range, got an integer of 401 digits"),
+    ({"fre_rms": 10 ** 400}, "fre_rms: out of range, got an integer of 401 digits"),
 ]
 
 
