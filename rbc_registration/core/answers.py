@@ -37,7 +37,8 @@ class TargetCorrections(NamedTuple):
         destination frame (K, d).
     :ivar expected_tre: (K,) expected distance of ``destination`` from the true point (the
         chosen method's cross-validated median error, scaled per target; ``ErrorModel``).
-    :ivar tre_bound: (K,) the distance ``destination`` stays within with 95 % probability.
+    :ivar tre_bound: (K,) the distance ``destination`` stays within with 95 % probability
+        (NaN, like ``expected_tre``, with fewer than d + 2 fiducials: nothing to cross-validate).
 
     The last three are None only in records built by hand with the first five fields.
     """
@@ -58,7 +59,8 @@ class TargetAnswer(NamedTuple):
 
     :ivar destination: the point to use per the decision, destination frame (K, d).
     :ivar expected_tre: (K,) its expected distance from the true point.
-    :ivar tre_bound: (K,) the distance it stays within with 95 % probability.
+    :ivar tre_bound: (K,) the distance it stays within with 95 % probability (NaN with fewer
+        than d + 2 fiducials: nothing to cross-validate).
     :ivar inside_hull: (K,) target inside the fiducials' convex hull.
     :ivar method: the decision's method (one of ``CANDIDATES``).
     """
@@ -124,10 +126,12 @@ class TargetEvaluation:
         # the interpolators share one hull, located once per call
         inside = self.simplices(m.interpolator.hull) >= 0
         errors = m.decision.error_model
-        scale = np.ones(len(self.targets))
+        # beyond every fiducial the registration's rotation error grows with the distance: the
+        # held-out fiducials calibrate the bound only as far out as they are
+        scale = m.fit_geometry.beyond(self.targets)
         if errors.scaled:
             kriging = m.interpolators["kriging"]
-            scale = np.hypot(self.interpolated("kriging").expected_error, kriging.noise_axis_std)
+            scale *= np.hypot(self.interpolated("kriging").expected_error, kriging.noise_axis_std)
         expected, bound = errors.at(scale)
         return TargetAnswer(destination, expected, bound, inside, method)
 

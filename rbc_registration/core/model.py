@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from functools import partial
+from functools import cached_property, partial
 from typing import Mapping, Optional, Sequence, Union
 
 import numpy as np
@@ -32,6 +32,7 @@ from .kriging import KrigingHyperparameters, KrigingInterpolator, summarised
 from .noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
 from .registration import Registration, rigid_fit
 from .restoration import RestorationResult, restore_rigid_body
+from .rigid_tre import FitGeometry
 from .scale import frame_mismatch
 from .validation import as_point_pairs, as_points, check_subset
 
@@ -68,6 +69,12 @@ class RbcModel:
     interpolator: Interpolator = field(repr=False)
     interpolators: Mapping[str, Interpolator] = field(repr=False)
     decision: Decision = field(repr=False)
+
+    @cached_property
+    def fit_geometry(self) -> FitGeometry:
+        """How the registration's error grows beyond the fiducials (:class:`~.rigid_tre.
+        FitGeometry`): a target's error scale is multiplied by its ``beyond``."""
+        return FitGeometry(self.working)
 
     @property
     def sigma_axis(self) -> Optional[float]:

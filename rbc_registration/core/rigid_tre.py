@@ -20,6 +20,8 @@ length scale only condition the numbers: the result does not depend on them.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -83,6 +85,74 @@ def rigid_tre_covariance(fiducials: ArrayLike, targets: ArrayLike,
     theta = g_inv @ _sandwich(dx, cov) @ g_inv
     dt = frame.design(t)
     return np.einsum("kai,ij,kbj->kab", dt, theta, dt)
+
+
+class FitGeometry:
+    """How the rigid fit's error grows with where a point is: the factor
+    f(T) = sqrt(trace(D(T) G^-1 D(T)^T)), TRE_rigid(T) / FLE for unit isotropic fiducial error
+    (module docstring): smallest at the centroid, growing linearly far away.
+
+    :meth:`beyond` is f(T) relative to its largest value at the fiducials, at least 1: how many
+    times farther out than every fiducial a target is, in the fit's own measure. An error bound
+    calibrated on held-out fiducials holds as far as they reach; beyond, the registration's
+    rotation error grows as this factor does.
+    """
+
+    def __init__(self, fiducials: ArrayLike) -> None:
+        """:param fiducials: (J, d) working-frame fiducials of the fit.
+        :raises ValueError: when they cannot fix a registration."""
+        x = as_points(fiducials, "fiducials", None, 1)
+        frame = RigidFrame(x)
+        dx = frame.design(x)
+        g_inv = _inverse_normal(np.einsum("nai,naj->ij", dx, dx), "fiducials")
+        # D(T) is affine in u = (T - origin) / scale, so f^2 = c + b.u + u.H u: its coefficients
+        # from f^2 at 0, +-e_i and e_i + e_j (exact up to rounding), a few us per target after
+        d = x.shape[1]
+        eye = np.eye(d)
+        probes = np.vstack([np.zeros((1, d)), eye, -eye] +
+                           [eye[i] + eye[j] for i in range(d) for j in range(i + 1, d)])
+        dp = frame.design(frame.origin + frame.scale * probes)
+        f2 = np.einsum("kai,ij,kaj->k", dp, g_inv, dp)
+        c, plus, minus = f2[0], f2[1:1 + d], f2[1 + d:1 + 2 * d]
+        self._b = (plus - minus) / 2
+        h = np.diag((plus + minus) / 2 - c)
+        pairs = iter(f2[1 + 2 * d:])
+        for i in range(d):
+            for j in range(i + 1, d):
+                h[i, j] = h[j, i] = (next(pairs) - c - self._b[i] - self._b[j] - h[i, i]
+                                     - h[j, j]) / 2
+        self._c, self._h = float(c), h
+        self._origin, self._inv_scale = frame.origin, 1.0 / frame.scale
+        self.reference = float(np.sqrt(self._squared(x).max()))
+        # beyond() in one pass: the coefficients over reference^2
+        r2 = self.reference ** 2
+        self._cr, self._br, self._hr = self._c / r2, self._b / r2, self._h / r2
+
+    def _squared(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
+        u = (points - self._origin) * self._inv_scale
+        return self._c + u @ self._b + np.einsum("ki,ij,kj->k", u, self._h, u)
+
+    def factor(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
+        """f at ``points`` (K, d), validated by the caller."""
+        return np.sqrt(np.maximum(self._squared(points), 0.0))
+
+    def beyond(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
+        """max(1, f(T) / max_j f(X_j)) at ``points`` (K, d)."""
+        if len(points) == 1:            # ~the node's single target: in floats, not 10 ufuncs
+            u = [(p - o) * self._inv_scale for p, o in zip(points[0].tolist(),
+                                                            self._origin.tolist())]
+            f2 = self._cr + sum(
+                ui * (b + sum(h * uj for h, uj in zip(row, u)))
+                for ui, b, row in zip(u, self._br.tolist(), self._hr.tolist()))
+            return np.array([math.sqrt(max(f2, 1.0))])
+        u = points - self._origin
+        u *= self._inv_scale
+        q = u @ self._hr
+        q += self._br
+        q *= u
+        f2 = q.sum(axis=1)
+        f2 += self._cr
+        return np.sqrt(np.maximum(f2, 1.0, out=f2), out=f2)
 
 
 def _inverse_normal(g: NDArray[np.float64], name: str) -> NDArray[np.float64]:

@@ -49,10 +49,10 @@ def reference(model, t):
         chosen = model.interpolators[method](t)
         destination, inside = model.corrected.apply(t - chosen.correction), chosen.inside_hull
     errors = model.decision.error_model
-    scale = np.ones(len(t))
+    scale = model.fit_geometry.beyond(t)
     if errors.scaled:
         kriging = model.interpolators["kriging"]
-        scale = np.hypot(kriging(t).expected_error, kriging.noise_axis_std)
+        scale = scale * np.hypot(kriging(t).expected_error, kriging.noise_axis_std)
     expected, bound = errors.at(scale)
     corrections = (uncorrected, model.corrected.apply(t - interp.correction), interp.correction,
                    interp.inside_hull, interp.expected_error, destination, expected, bound)
