@@ -189,8 +189,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
 
     def _on_point(self, stream: str, msg: PointStamped) -> None:
         self._samples.update(stream, msg)  # the latest point, for ~/take_sample
-        if self._settings.point_mode == "pair" and self._ingest.point(
-                stream, *conv.point_stamped_to_tuple(msg)):
+        if self._settings.point_mode != "pair":
+            return
+        point = conv.point_stamped_to_tuple(msg)
+        if self._ingest.point(stream, *point):
+            self._samples.mark_paired(point[2], self._settings.pair_slop)
             self._worker.notify()
 
     def _on_working_point(self, msg: PointStamped) -> None:

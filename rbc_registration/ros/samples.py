@@ -39,6 +39,7 @@ class Latest(NamedTuple):
 
     msg: PointStamped
     received_ns: int
+    paired: bool = False        # recorded already as a stamp pair (point_mode pair)
 
 
 class SampleTaker:
@@ -58,6 +59,15 @@ class SampleTaker:
         """Remember ``msg`` as the latest point of ``stream`` (``working`` / ``destination``)."""
         with self._lock:
             self._latest[stream] = Latest(msg, self._node.get_clock().now().nanoseconds)
+
+    def mark_paired(self, stamp_s: float, slop: float) -> None:
+        """A stamp pair of ``stamp_s`` was recorded: the latest points within ``slop`` of it
+        are in it, and ``~/take_sample`` must not record them again."""
+        with self._lock:
+            for stream, latest in self._latest.items():
+                stamp = conv.point_stamped_to_tuple(latest.msg)[2]
+                if abs(stamp - stamp_s) <= slop:
+                    self._latest[stream] = latest._replace(paired=True)
 
     def _point(self, stream: str, topic: str, settings: Settings, now_ns: int) -> Any:
         latest = self._latest.get(stream)
@@ -101,6 +111,12 @@ class SampleTaker:
         missing or stale point."""
         now_ns = self._node.get_clock().now().nanoseconds
         with self._lock:
+            latest = self._latest.get(WORKING)
+            if settings.point_mode == "pair" and latest is not None and latest.paired:
+                return None, ("the latest ~/working_point is recorded already, paired by stamp "
+                              "(point_mode pair): a sample would count it twice (a false "
+                              "repeat, sigma too small); send a new point, or use point_mode "
+                              "sample")
             working = self._point(WORKING, "~/working_point", settings, now_ns)
             destination = (self._point(DESTINATION, "~/destination_point", settings, now_ns)
                            if settings.sample_destination_source == "topic" else None)

@@ -94,6 +94,11 @@ class TestTakeSample(NodeTestBase):
         self.send(node, "working_point", self.cell["working"][0], "tracker")
         self.send(node, "destination_point", self.cell["destination"][0], "world")
         wait_for(lambda: node.status().n_measurements == 1, what="the stamp pair")
+        # the points of that pair are recorded: a sample of them would be a false repeat
+        r = self.take(node, "H05")
+        assert not r.success and "recorded already, paired by stamp" in r.message
+        assert node.status().n_measurements == 1
+        self.send(node, "working_point", self.cell["working"][1], "tracker")   # no partner
         assert self.take(node, "H05").success and node.status().n_measurements == 2
 
     @pytest.mark.skipif(not samples.TF2_ROS_MISSING, reason="tf2_ros is installed")
