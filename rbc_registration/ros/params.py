@@ -23,6 +23,9 @@ def type_error(name: str, got_type: str, value: Any) -> str:
     want = ROS_TYPE_NAMES.get(type(spec.default), "?") if spec is not None else "?"
     hint = f" (write {float(value)!r})" if want == "double" and isinstance(value, int) \
         and not isinstance(value, bool) else ""
+    if want == "string" and isinstance(value, bool):
+        hint = (" (YAML reads an unquoted on, off, yes, no, true or false as a boolean: quote "
+                f"it, e.g. {name}:=\"'off'\" on the command line or {name}: 'off' in a file)")
     return (f"Wrong parameter type: {name} must be of type {want}, got {got_type.lower()} "
             f"{value!r}{hint}")
 
@@ -38,6 +41,7 @@ def declare(node: Any) -> Settings:
         start, naming what replaces it).
     """
     from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+    from rclpy.exceptions import InvalidParameterTypeException
 
     for name in REMOVED:
         if name in getattr(node, "_parameter_overrides", {}):
@@ -57,7 +61,11 @@ def declare(node: Any) -> Settings:
                                                             to_value=float(spec.high), step=0.0)]
             if spec.low_exclusive:
                 desc.additional_constraints = f"> {spec.low:g}"
-        values[name] = node.declare_parameter(name, spec.default, desc).value
+        try:
+            values[name] = node.declare_parameter(name, spec.default, desc).value
+        except InvalidParameterTypeException:
+            given = node._parameter_overrides[name]
+            raise ValueError(type_error(name, given.type_.name, given.value)) from None
     if values["state_dir"] == STATE_DIR_AUTO:
         values["state_dir"] = default_state_dir(node.get_namespace(), node.get_name(),
                                                 root=state_root())

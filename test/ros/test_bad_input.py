@@ -55,7 +55,8 @@ BAD_PARAMETERS = [
     ("rho_apply-order", "rho_apply", 0.5, "rho_reject (1) must be <= rho_apply (0.5)"),
     ("decision-choice", "decision", "auto", "decision must be one of cv, rho, on, off; got 'auto'"),
     ("decision-type", "decision", True,
-     "Wrong parameter type: decision must be of type string, got bool True"),
+     "Wrong parameter type: decision must be of type string, got bool True (YAML reads an "
+     "unquoted on, off"),
     ("sigma_axis-range", "sigma_axis", -0.001,
      "Parameter sigma_axis out of range Min: 0.0, Max: 1.0, value: -0.001"),
     ("min_fiducials-range", "min_fiducials", 2, "Parameter min_fiducials out of range"),

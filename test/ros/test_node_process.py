@@ -103,11 +103,17 @@ def test_separate_client_process_streams_pairs_and_corrects_targets(tmp_path):
     assert node.returncode == 0, (tmp_path / "node.log").read_text()
 
 
-def test_a_bad_parameter_stops_the_node_with_a_reason(tmp_path):
+@pytest.mark.parametrize("params, reason", [
+    ({"dimension": 4}, "cannot start"),
+    # -p decision:=off: YAML makes it a boolean; the reason says to quote it
+    ({"decision": "off"}, "cannot start: Wrong parameter type: decision must be of type string, "
+                          "got bool False (YAML reads an unquoted on, off"),
+])
+def test_a_bad_parameter_stops_the_node_with_a_reason(tmp_path, params, reason):
     with open(tmp_path / "node.log", "w") as log:
-        proc = start_test_node(f"reg_bad_{os.getpid()}", log=log, dimension=4)
+        proc = start_test_node(f"reg_bad_{os.getpid()}", log=log, **params)
         assert proc.wait(timeout=60) == 1
-    assert "cannot start" in (tmp_path / "node.log").read_text()
+    assert reason in (tmp_path / "node.log").read_text()
 
 
 class TestKillAndRestart(RosTestBase):

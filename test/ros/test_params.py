@@ -30,4 +30,6 @@ def test_a_wrong_type_names_the_parameter_and_both_types():
     assert params.type_error("sigma", "INTEGER", 1) == (
         "Wrong parameter type: sigma must be of type double, got integer 1 (write 1.0)")
     assert params.type_error("interpolation", "BOOL", True) == (
-        "Wrong parameter type: interpolation must be of type string, got bool True")
+        "Wrong parameter type: interpolation must be of type string, got bool True (YAML reads "
+        "an unquoted on, off, yes, no, true or false as a boolean: quote it, e.g. "
+        "interpolation:=\"'off'\" on the command line or interpolation: 'off' in a file)")
