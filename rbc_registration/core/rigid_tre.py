@@ -156,10 +156,17 @@ class FitGeometry:
 
 
 def _inverse_normal(g: NDArray[np.float64], name: str) -> NDArray[np.float64]:
-    if np.linalg.cond(g) > 1e12:
+    """G^-1, conditioned on G's diagonal first: a point far from the others (a candidate
+    1e9 m out) scales its rotation rows, not its rank."""
+    diagonal = np.diag(g)
+    if not np.all(diagonal > 0):
+        raise ValueError(f"{name} cannot fix a rigid registration (coincident points)")
+    s = 1.0 / np.sqrt(diagonal)
+    scaled = g * np.outer(s, s)
+    if np.linalg.cond(scaled) > 1e12:
         raise ValueError(f"{name} cannot fix a rigid registration (coincident, or collinear "
                          f"in 3D)")
-    return np.linalg.inv(g)
+    return np.linalg.inv(scaled) * np.outer(s, s)
 
 
 class RigidFitError:

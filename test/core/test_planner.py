@@ -444,3 +444,19 @@ def test_validation(args, kwargs, message):
 def test_config_validation(make, message):
     with pytest.raises(ValueError, match=message):
         make()
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_a_far_point_does_not_make_the_fit_look_degenerate(d):
+    """G with a point 1e9 units out has rows of very different size: its plain condition
+    number said "cannot fix a rigid registration"; conditioned on its diagonal it is fine."""
+    from rbc_registration.core.rigid_tre import RigidFitError
+    rng = np.random.default_rng(d)
+    x = rng.uniform(0, 1, (12, d))
+    far = np.zeros((1, d))
+    far[0, 0] = 1e9
+    cov = np.eye(d) * 1e-4
+    fit = RigidFitError(np.vstack([x, far]), cov, x[:2], cov, x[:3])
+    assert np.all(np.isfinite(fit.now())) and np.all(fit.now() > 0)
+    np.testing.assert_allclose(rigid_tre_covariance(x, x[:3], cov),
+                               rigid_tre_covariance(x + 1e6, x[:3] + 1e6, cov), rtol=1e-6)
