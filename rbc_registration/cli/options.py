@@ -149,7 +149,8 @@ def _with_children(path: Path) -> Iterable[Path]:
 def refuse_outputs_onto_inputs(outputs: Sequence[tuple[str, Optional[Path]]],
                                inputs: Sequence[tuple[str, Optional[Path]]],
                                directory_files: Sequence[str] = ()) -> None:
-    """Refuse, before anything is written, an output that is one of the inputs.
+    """Refuse, before anything is written, an output that is one of the inputs, or two outputs
+    that are one file.
 
     :param outputs: ``(option, path)`` of every output (``None``: not given).
     :param inputs: ``(what, path)`` of every input (``None``: not given); a directory input (a
@@ -171,3 +172,9 @@ def refuse_outputs_onto_inputs(outputs: Sequence[tuple[str, Optional[Path]]],
                         same = "" if dst == out else f" (it would write {dst})"
                         raise ValueError(f"{option} {out} is the input {what} {src}{same}: "
                                          "refusing to overwrite an input")
+    given = [(option, out) for option, out in outputs if out is not None]
+    for k, (option, out) in enumerate(given):
+        for other, path in given[k + 1:]:
+            if _same_file(path, out):
+                raise ValueError(f"{option} and {other} are the same file {out}: one would "
+                                 "overwrite the other")

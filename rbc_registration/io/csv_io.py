@@ -70,7 +70,9 @@ class TargetTable:
 def _read_rows(path: PathLike, required: list[str]
                ) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
     """The header and the data rows, each with its line in the file (the header is line 1;
-    blank lines, which ``csv.DictReader`` skips, still count), for the messages' ``row N``."""
+    blank lines, which ``csv.DictReader`` skips, still count), for the messages' ``row N``.
+    Rows whose every field is empty or blank (``,,,,``, as spreadsheets export trailing rows)
+    are skipped like blank lines."""
     p = Path(path)
     try:
         with p.open(newline="", encoding="utf-8-sig") as fh:
@@ -79,6 +81,9 @@ def _read_rows(path: PathLike, required: list[str]
             rows = [(reader.line_num, {(k or "").strip(): (v or "").strip()
                                        if isinstance(v, str) else v for k, v in row.items()})
                     for row in reader]
+        rows = [(line, row) for line, row in rows if any(
+            v for v in row.values() if isinstance(v, str)) or any(
+            x.strip() for v in row.values() if isinstance(v, list) for x in v)]
     except FileNotFoundError:
         raise CsvError(f"{p}: no such file") from None
     except (UnicodeDecodeError, csv.Error) as exc:

@@ -117,3 +117,13 @@ def test_register_names_an_ignored_working_repeat_in_one_line(tmp_path, capsys):
     assert capsys.readouterr().err == ""
     assert cli.main(["register", str(f), "--outlier-distance", "0.00001"]) == 0
     assert len(capsys.readouterr().err.strip().splitlines()) == 6
+
+
+def test_two_outputs_onto_one_file_are_refused(tmp_path, capsys, files):
+    """``plan --json same.png --figure same.png`` wrote the JSON, then the figure over it."""
+    same = tmp_path / "same.png"
+    assert cli.main(["plan", str(files["fid"]), "--candidates", str(files["tgt"]), "--json",
+                     str(same), "--figure", str(same)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--json and --figure are the same file" in err[0], err
+    assert not same.exists()

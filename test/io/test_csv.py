@@ -217,3 +217,13 @@ def test_row_numbers_are_lines_of_the_file_after_blank_lines(tmp_path, read, tex
     # csv.DictReader skips blank lines; a message still names the line an editor shows
     with pytest.raises(CsvError, match=re.escape(message)):
         read(write(tmp_path, text))
+
+
+def test_rows_of_empty_fields_are_skipped_like_blank_lines(tmp_path):
+    """A spreadsheet's trailing ``,,,,,,`` rows were refused as 'column id is empty'."""
+    text = (H3 + "a,0,0,0,0,0,0\n,,,,,,\nb,1,0,0,1,0,0\n , , ,,,,\nc,0,1,0,0,1,0\n"
+            "d,0,0,1,0,0,1\n,,,,,,\n")
+    t = read_fiducials(write(tmp_path, text), 3)
+    assert t.ids == ("a", "b", "c", "d")
+    with pytest.raises(CsvError, match="row 4: column wz is empty"):   # lines still count
+        read_fiducials(write(tmp_path, H3 + "a,0,0,0,0,0,0\n,,,,,,\nb,1,0,,1,0,0\n"), 3)
