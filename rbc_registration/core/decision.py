@@ -183,13 +183,15 @@ def conformal_quantile(values: ArrayLike, level: float = BOUND_LEVEL) -> float:
     return float(v[min(v.size, math.ceil(level * (v.size + 1))) - 1])
 
 
-def paired_test(uncorrected: NDArray[np.float64], method: NDArray[np.float64]
-                ) -> tuple[float, float]:
+def paired_test(uncorrected: NDArray[np.float64], method: NDArray[np.float64],
+                resolution: float = 0.0) -> tuple[float, float]:
     """One-sided Wilcoxon signed-rank test that ``method``'s errors are smaller (paired per
-    fiducial): (W+, p). Differences within :data:`TIE_TOLERANCE` are ties and dropped; identical
+    fiducial): (W+, p). Differences within :data:`TIE_TOLERANCE` of the median error, or within
+    ``resolution`` (``CrossValidation.resolution``: rounding), are ties and dropped; identical
     errors give (0, 1)."""
     diff = uncorrected - method
-    diff[np.abs(diff) <= TIE_TOLERANCE * float(np.median(uncorrected))] = 0.0
+    tie = max(TIE_TOLERANCE * float(np.median(uncorrected)), resolution)
+    diff[np.abs(diff) <= tie] = 0.0
     if not np.any(diff != 0):
         return 0.0, 1.0
     res = scipy.stats.wilcoxon(diff, alternative="greater")
@@ -203,7 +205,7 @@ def _score(cv: CrossValidation, method: str) -> CandidateScore:
     e = cv.errors[method]
     stat = p = None
     if method != UNCORRECTED and UNCORRECTED in cv.errors:
-        stat, p = paired_test(cv.errors[UNCORRECTED], e)
+        stat, p = paired_test(cv.errors[UNCORRECTED], e, cv.resolution)
     return CandidateScore(method, True, float(np.median(e)), float(np.sqrt(np.mean(e * e))),
                           conformal_quantile(e), stat, p)
 
@@ -223,19 +225,20 @@ def _g(v: float) -> str:
     return f"{v:.3g}"
 
 
-def _preferred(winners: list[CandidateScore], errors: Mapping[str, NDArray[np.float64]]
-               ) -> CandidateScore:
+def _preferred(winners: list[CandidateScore], errors: Mapping[str, NDArray[np.float64]],
+               resolution: float) -> CandidateScore:
     """The winner first in :data:`PREFERENCE`, unless another winner's held-out errors are
     significantly smaller than its own (then the one of those with the smallest median)."""
     ranked = sorted(winners, key=lambda s: PREFERENCE.index(s.method))
     first = ranked[0]
     better = [s for s in ranked[1:]
-              if paired_test(errors[first.method], errors[s.method])[1] < SIGNIFICANCE]
+              if paired_test(errors[first.method], errors[s.method], resolution)[1]
+              < SIGNIFICANCE]
     return min(better, key=lambda s: s.cv_median) if better else first
 
 
-def _cv_choice(scores: list[CandidateScore], errors: Mapping[str, NDArray[np.float64]], n: int
-               ) -> tuple[str, str, bool]:
+def _cv_choice(scores: list[CandidateScore], errors: Mapping[str, NDArray[np.float64]], n: int,
+               resolution: float) -> tuple[str, str, bool]:
     base = scores[0]
     if not base.available:
         return UNCORRECTED, (f"Cross-validation was not possible ({base.note}), so the "
@@ -247,7 +250,7 @@ def _cv_choice(scores: list[CandidateScore], errors: Mapping[str, NDArray[np.flo
     level = SIGNIFICANCE / len(tested)
     winners = [s for s in tested if s.p_value < level]
     if winners:
-        best = _preferred(winners, errors)
+        best = _preferred(winners, errors, resolution)
         lower = [s for s in winners if s.cv_median < best.cv_median]
         kept = "".join(f"; {s.method}'s lower median {_g(s.cv_median)} was not significantly "
                        f"smaller than {best.method}'s errors" for s in lower)
@@ -257,7 +260,8 @@ def _cv_choice(scores: list[CandidateScore], errors: Mapping[str, NDArray[np.flo
             f"{_g(base.cv_median)}, one-sided Wilcoxon p = {best.p_value:.2g} < {_g(level)}"
             f"{kept}), so they are applied."), True
     best = min(tested, key=lambda s: s.cv_median)
-    confident = best.cv_median > (1.0 - RELEVANT_GAIN) * base.cv_median
+    # a gain below the rounding of the errors (exact data) is no gain either
+    confident = best.cv_median > (1.0 - RELEVANT_GAIN) * base.cv_median - resolution
     return UNCORRECTED, (
         f"No correction beat the uncorrected registration with {_g(100 * (1 - SIGNIFICANCE))} % "
         f"confidence on the {n} held-out fiducials (best: {best.method}, median error "
@@ -305,7 +309,8 @@ def decide(mode: DecisionMode, cv: CrossValidation, configured: str, assessment:
     if mode is DecisionMode.CV:
         if not scores or scores[0].method != UNCORRECTED:
             scores.insert(0, _score(cv, UNCORRECTED))
-        method, reason, confident = _cv_choice(scores, cv.errors, _held_out_count(cv))
+        method, reason, confident = _cv_choice(scores, cv.errors, _held_out_count(cv),
+                                               cv.resolution)
     elif mode is DecisionMode.RHO:
         method, reason, confident = _rho_choice(assessment, configured, rho_reject, rho_apply)
     elif mode is DecisionMode.ON:
