@@ -298,7 +298,7 @@ def read_calibration(path: str) -> Calibration:
     if len(raw) > MAX_FILE_BYTES:
         raise ValueError(f"{path}: larger than {MAX_FILE_BYTES} bytes: not a calibration file")
     try:
-        data = yaml.safe_load(raw.decode("utf-8"))
+        data = fields.load_yaml(raw.decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
     except yaml.YAMLError as exc:

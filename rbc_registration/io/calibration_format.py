@@ -13,6 +13,8 @@ import reprlib
 from datetime import datetime
 from typing import Any, Optional, Sequence
 
+import yaml
+
 FORMAT = "rbc_registration_calibration"
 FORMAT_VERSION = 1
 UNITS = "m"
@@ -217,3 +219,26 @@ def optional_length(name: str, value: Optional[Any]) -> Optional[float]:
     """None, or a length as :func:`check_length`."""
     return None if value is None else check_length(name, value)
 
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses a mapping with a key twice (the plain loader keeps the
+    last: an edited file with two ``translation`` blocks would load the second silently)."""
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"found the key {key!r} twice", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+def load_yaml(text: str) -> Any:
+    """The YAML document in ``text`` (safe types only; a key twice in a mapping is an error).
+
+    :raises yaml.YAMLError: on invalid YAML, naming the problem and its mark.
+    """
+    return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass

@@ -290,6 +290,8 @@ def test_yaml_timestamp_is_accepted(tmp_path):
     (b"format: \xff\xfe\n", "not UTF-8 text (byte 8)"),
     (b"", "empty (no YAML document): not a calibration file"),
     (b"# only a comment\n", "empty (no YAML document): not a calibration file"),
+    (b"fre_rms: 0.1\nsigma: null\nfre_rms: 0.2\n",             # last-wins before
+     "not valid YAML at line 3, column 1: found the key 'fre_rms' twice"),
 ])
 def test_file_content_that_is_no_calibration(tmp_path, content, message):
     path = tmp_path / "cal.yaml"
