@@ -90,6 +90,14 @@ def write_json(report: dict[str, Any], path: Path | str) -> None:
     Path(path).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
 
 
+def _rho_text(report: dict[str, Any]) -> str:
+    """rho as the text report shows it: JSON has no inf, so sigma = 0 (identical repeats)
+    gives rho null there, which is infinite, not unknown."""
+    if report["rho"] is None and report.get("sigma") == 0:
+        return "inf (sigma = 0)"
+    return _fmt(report["rho"])
+
+
 def _fmt(v: Any, unit: str = "") -> str:
     if v is None:
         return "n/a"
@@ -132,7 +140,7 @@ def format_report(report: dict[str, Any]) -> str:
         f"  sigma        {_fmt(report['sigma'], u)} per point, {_fmt(report['sigma_axis'], u)} "
         f"per axis ({report['sigma_source']})",
         f"  sigma_L      {sig_l} {u}  (before, after each step; eq. 7)",
-        f"  rho          {_fmt(report['rho'])} -> {report['recommendation']} (the paper's rule)",
+        f"  rho          {_rho_text(report)} -> {report['recommendation']} (the paper's rule)",
         f"  FRE rms      uncorrected {_fmt(report['uncorrected']['fre_rms'], u)}, "
         f"corrected {_fmt(report['corrected']['fre_rms'], u)}",
         *decision_lines(report["decision"], u),

@@ -153,3 +153,13 @@ def test_the_smallest_valid_configuration_registers_end_to_end(tmp_path, dim, in
     if interpolation == "paper" and dim == 3:   # barycentric at the centroid: the mean eps
         np.testing.assert_allclose(rep["targets"][0]["correction"],
                                    model.corrections.mean(axis=0), atol=1e-9)
+
+
+def test_sigma_zero_shows_rho_infinite_not_unknown(tmp_path):
+    """Identical repeats: sigma = 0 and rho = inf (null in JSON, which has no inf); the text
+    said 'rho n/a -> apply' while the reason said 'rho = inf'."""
+    csv = tmp_path / "s0.csv"
+    csv.write_text("id,wx,wy,wz,dx,dy,dz\na,0,0,0,0,0,0\na,0,0,0,0,0,0\nb,1000,0,0,1000,0,0\n"
+                   "c,0,1000,0,0,1000,0\nd,0,0,1000,0,0,1000\ne,500,500,500,500,500,500.1\n")
+    proc = run("register", csv)
+    assert "rho          inf (sigma = 0) -> apply" in proc.stdout, proc.stdout
