@@ -275,6 +275,9 @@ def test_no_enough_while_the_bias_length_scale_is_below_the_fiducial_spacing(d):
     assert unresolved_bias(x, tiny) is None and plan(x, c, tiny, config=easy).enough
     rigid_only = model(d, length=0.5, corrected=False)    # no bias learnt: nothing to resolve
     assert plan(x, c, rigid_only, config=easy).enough
+    # exact data: a 'bias' and a noise of rounding (8e-14 against 8e-17) said "measure more"
+    exact = ExpectedErrorModel.from_axis_std(1e-14, 0.5, np.full(d, 1e-17))
+    assert unresolved_bias(x + 1000.0, exact) is None
 
 
 def test_the_plan_is_immutable_and_typed():
