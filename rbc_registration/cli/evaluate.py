@@ -91,8 +91,8 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline.targets import Targets
 
     inputs = [("bag", args.bag), ("--targets", args.targets)]
-    refuse_outputs_onto_inputs([("--json", args.json)], inputs)
-    refuse_outputs_onto_inputs([("--out", args.out)], inputs, REPORT_FILES)
+    refuse_outputs_onto_inputs([("--json", args.json), ("--out", args.out)], inputs,
+                               REPORT_FILES)
     params = parse_params(args.param)
     for key, value in (("sigma", args.sigma), ("sigma_axis", args.sigma_axis),
                        ("decision", args.decision), ("restoration", args.restoration),

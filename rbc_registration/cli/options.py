@@ -156,7 +156,7 @@ def refuse_outputs_onto_inputs(outputs: Sequence[tuple[str, Optional[Path]]],
     :param inputs: ``(what, path)`` of every input (``None``: not given); a directory input (a
         bag) counts with the files in it.
     :param directory_files: names of the files written into an output directory (``--out DIR``
-        of ``evaluate``): each of them is an output too.
+        of ``evaluate``): each of them is an output too (of every output: a file has none).
     :raises ValueError: naming the option, the output and the input it would overwrite.
     """
     for option, out in outputs:
@@ -172,9 +172,10 @@ def refuse_outputs_onto_inputs(outputs: Sequence[tuple[str, Optional[Path]]],
                         same = "" if dst == out else f" (it would write {dst})"
                         raise ValueError(f"{option} {out} is the input {what} {src}{same}: "
                                          "refusing to overwrite an input")
-    given = [(option, out) for option, out in outputs if out is not None]
-    for k, (option, out) in enumerate(given):
-        for other, path in given[k + 1:]:
-            if _same_file(path, out):
-                raise ValueError(f"{option} and {other} are the same file {out}: one would "
-                                 "overwrite the other")
+    given = [(option, out, [out] + [out / name for name in directory_files])
+             for option, out in outputs if out is not None]
+    for k, (option, out, mine) in enumerate(given):
+        for other, path, theirs in given[k + 1:]:
+            if any(_same_file(a, b) for a in mine for b in theirs):
+                raise ValueError(f"{option} {out} and {other} {path} are the same file (or one "
+                                 "writes into the other): one would overwrite the other")

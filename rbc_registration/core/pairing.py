@@ -9,10 +9,12 @@ Each stream is assumed to arrive in stamp order (as a driver publishes it). A bu
 of that stream can match it any more, so it is dropped and reported. Buffers are bounded
 (``max_buffer`` per stream, oldest dropped first).
 
-A stream that goes back in time by more than ``slop`` (one point stamped far in the future, or
-a driver restarted with a new clock) starts again from the new stamp: its buffered points later
-than it are dropped as out of order, and its latest stamp is the new one. Otherwise a single
-future stamp would make every later point of the other stream look stale until a reset.
+A stream that goes back in time by more than :data:`RESTART_AFTER` (and ``slop``): one point
+stamped far in the future, or a driver restarted with a new clock, starts again from the new
+stamp: its buffered points later than it by more than ``slop`` are dropped as out of order, and
+its latest stamp is the new one. Otherwise a single future stamp would make every later point of
+the other stream look stale until a reset. A point merely late (back by less) is paired or
+dropped as before, and the points after it stay buffered.
 """
 
 from __future__ import annotations
@@ -28,6 +30,9 @@ from numpy.typing import ArrayLike, NDArray
 from .constants import DESTINATION, WORKING
 
 _OTHER = {WORKING: DESTINATION, DESTINATION: WORKING}
+#: A stream going back by more than this [s] (and the slop) restarts (module docstring): longer
+#: than a late delivery, shorter than a clock jump or a driver restart.
+RESTART_AFTER = 1.0
 
 
 @dataclass(frozen=True)
@@ -140,7 +145,7 @@ class StampPairer:
         point = StampedPoint((float(arr[0]), float(arr[1]), float(arr[2])), str(frame_id), stamp)
         other = _OTHER[stream]
         dropped: list[DroppedPoint] = []
-        if stamp < self._latest[stream] - self._slop:       # the stream went back in time
+        if stamp < self._latest[stream] - max(self._slop, RESTART_AFTER):   # back in time
             self._restart(stream, stamp, dropped)
         self._latest[stream] = max(self._latest[stream], stamp)
         # Points of the other stream older than stamp - slop cannot match this or later points.
@@ -163,6 +168,17 @@ class StampPairer:
                                             f"({self.max_buffer} unmatched points)"))
         self.n_dropped += len(dropped)
         return PairingResult(pairs, tuple(dropped))
+
+    def discard(self, stream: str, xyz: ArrayLike, stamp_s: float) -> bool:
+        """Drop the buffered point of ``stream`` at ``xyz`` and ``stamp_s`` (recorded otherwise,
+        e.g. by ``~/take_sample``) without reporting it; whether there was one."""
+        key = (tuple(float(v) for v in np.asarray(xyz, dtype=np.float64)), float(stamp_s))
+        buf = self._buffers[stream]
+        for k, point in enumerate(buf):
+            if (point.xyz, point.stamp_s) == key:
+                del buf[k]
+                return True
+        return False
 
     def _restart(self, stream: str, stamp: float, dropped: list[DroppedPoint]) -> None:
         """``stream`` from ``stamp`` on (module docstring): its points after it dropped."""

@@ -99,12 +99,16 @@ class FitGeometry:
     """
 
     def __init__(self, fiducials: ArrayLike) -> None:
-        """:param fiducials: (J, d) working-frame fiducials of the fit.
-        :raises ValueError: when they cannot fix a registration."""
+        """:param fiducials: (J, d) working-frame fiducials of the fit (near-degenerate ones,
+        which :func:`.registration.rigid_fit` accepts, through the pseudo-inverse)."""
         x = as_points(fiducials, "fiducials", None, 1)
         frame = RigidFrame(x)
         dx = frame.design(x)
-        g_inv = _inverse_normal(np.einsum("nai,naj->ij", dx, dx), "fiducials")
+        g = np.einsum("nai,naj->ij", dx, dx)
+        try:
+            g_inv = _inverse_normal(g, "fiducials")
+        except ValueError:      # a cell thin enough to be near degenerate, which the
+            g_inv = np.linalg.pinv(g)   # registration accepted: its poorly fixed rotation shows
         # D(T) is affine in u = (T - origin) / scale, so f^2 = c + b.u + u.H u: its coefficients
         # from f^2 at 0, +-e_i and e_i + e_j (exact up to rounding), a few us per target after
         d = x.shape[1]

@@ -160,7 +160,11 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
     sigma = None if data.get("sigma") is None else _number(data, "sigma", where)
     decision, tre = _document_decision(data, where, scale)
     at = f"{where}: {registration}"
-    rotation = _get(reg, "rotation", at)
+    rows = _get(reg, "rotation", at)
+    if not isinstance(rows, list) or not all(isinstance(r, list) for r in rows):
+        raise ValueError(f"{at}: rotation: must be a list of rows of numbers")
+    rotation = [[check_number(f"{at}: rotation[{i}][{k}]", v) for k, v in enumerate(row)]
+                for i, row in enumerate(rows)]
     translation = [scale * v for v in _numbers(reg, "translation", at)]
     fre_rms = scale * _number(reg, "fre_rms", at)
     if isinstance(n_fiducials, bool) or not isinstance(n_fiducials, int):

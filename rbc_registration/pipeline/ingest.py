@@ -13,7 +13,7 @@ from typing import Any, Callable, Mapping, NamedTuple, Optional, Sequence
 
 from ..core.accumulator import (FiducialAccumulator, FiducialSet, Measurement, Record,
                                 RejectedMeasurement)
-from ..core.pairing import StampPairer
+from ..core.pairing import PointPair, StampPairer
 from .journal import Journal
 from .residuals import FiducialSummary
 from .settings import Settings
@@ -142,24 +142,28 @@ class Ingest:
         with self._lock:
             return self._measurement_locked(args)[0] is not None
 
-    def point(self, stream: str, xyz: Any, frame_id: str, stamp_s: float) -> bool:
-        """One ``~/working_point`` / ``~/destination_point``; True when it completed a pair that
-        was accepted. Unpairable points are rejected as malformed."""
+    def point(self, stream: str, xyz: Any, frame_id: str, stamp_s: float) -> list[PointPair]:
+        """One ``~/working_point`` / ``~/destination_point``: the pairs it completed that were
+        accepted (empty: none; truthy when the model must be rebuilt). Unpairable points are
+        rejected as malformed."""
         with self._lock:
             try:
                 result = self._pairer.add(stream, xyz, frame_id, stamp_s)
             except ValueError as exc:
                 self._rejected(self._acc.reject("malformed", str(exc)))
-                return False
+                return []
             for dropped in result.dropped:
                 self._rejected(self._acc.reject("malformed", f"unpaired {dropped.stream} point "
                                                 f"dropped: {dropped.reason}"))
-            accepted = False
-            for pair in result.pairs:
-                accepted |= self._measurement_locked(PairArgs(
-                    None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
-                    pair.destination.frame_id, pair.stamp_s))[0] is not None
-            return accepted
+            return [pair for pair in result.pairs if self._measurement_locked(PairArgs(
+                None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
+                pair.destination.frame_id, pair.stamp_s))[0] is not None]
+
+    def discard_point(self, stream: str, xyz: Any, stamp_s: float) -> bool:
+        """Drop a buffered, unpaired point recorded otherwise (``~/take_sample`` in point_mode
+        pair), so that it is not recorded again when its partner arrives."""
+        with self._lock:
+            return self._pairer.discard(stream, xyz, stamp_s)
 
     def set_enabled(self, fiducial_id: str, enabled: bool) -> tuple[bool, str]:
         """Enable or disable a fiducial (journaled); returns (success, message)."""

@@ -241,19 +241,29 @@ class Journal:
         """Move the journal (and snapshot) aside as ``*.<UTC time>.bak`` and start a new one.
 
         :return: the archived journal's path, or ``None`` when there was none.
-        :raises OSError: when a file cannot be moved; the journal then stays as it was, open
-            for appending (the snapshot may be archived already: the next model rewrites it).
+        :raises OSError: when a file cannot be moved or the new journal cannot be created; the
+            journal then stays as it was, open for appending (the snapshot may be archived
+            already: the next model rewrites it).
         """
         suffix = _stamp()
-        archived = None
-        for name in (SNAPSHOT_NAME, JOURNAL_NAME):       # the journal last: it is the record
-            path = os.path.join(self.state_dir, name)
-            if os.path.exists(path):
-                os.replace(path, f"{path}.{suffix}.bak")  # an open file moves with its fd
-                if name == JOURNAL_NAME:
-                    archived = f"{path}.{suffix}.bak"
+        snapshot = os.path.join(self.state_dir, SNAPSHOT_NAME)
+        if os.path.exists(snapshot):
+            os.replace(snapshot, f"{snapshot}.{suffix}.bak")
+        archived = f"{self.path}.{suffix}.bak" if os.path.exists(self.path) else None
+        if archived:
+            os.replace(self.path, archived)     # the open descriptor moves with the file
+        try:
+            fd = open_private(self.path, os.O_RDWR | os.O_APPEND | os.O_CREAT)
+        except OSError:
+            if archived:                        # put it back: the journal stays as it was
+                os.replace(archived, self.path)
+            raise
         self.close()
-        fsync_dir(self.state_dir)
+        self._fd = fd                           # from here on the reset has happened
+        try:
+            fsync_dir(self.state_dir)
+        except OSError:
+            pass    # durability of the renames only: the new journal is open either way
         self._open(truncate_to=0)
         return archived
 

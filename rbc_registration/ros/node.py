@@ -191,9 +191,9 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self._samples.update(stream, msg)  # the latest point, for ~/take_sample
         if self._settings.point_mode != "pair":
             return
-        point = conv.point_stamped_to_tuple(msg)
-        if self._ingest.point(stream, *point):
-            self._samples.mark_paired(point[2], self._settings.pair_slop)
+        pairs = self._ingest.point(stream, *conv.point_stamped_to_tuple(msg))
+        if pairs:
+            self._samples.mark_paired(pairs)
             self._worker.notify()
 
     def _on_working_point(self, msg: PointStamped) -> None:

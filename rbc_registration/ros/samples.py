@@ -7,7 +7,7 @@ journal, counters) like every measurement. Units: metres.
 from __future__ import annotations
 
 import threading
-from typing import Any, NamedTuple, Optional
+from typing import Any, NamedTuple, Optional, Sequence
 
 from geometry_msgs.msg import PointStamped
 
@@ -60,13 +60,16 @@ class SampleTaker:
         with self._lock:
             self._latest[stream] = Latest(msg, self._node.get_clock().now().nanoseconds)
 
-    def mark_paired(self, stamp_s: float, slop: float) -> None:
-        """A stamp pair of ``stamp_s`` was recorded: the latest points within ``slop`` of it
-        are in it, and ``~/take_sample`` must not record them again."""
+    def mark_paired(self, pairs: Sequence[Any]) -> None:
+        """Stamp pairs (``core.pairing.PointPair``) were recorded: a latest point that is one of
+        their points (same coordinates and stamp) must not be recorded again by
+        ``~/take_sample``."""
         with self._lock:
             for stream, latest in self._latest.items():
-                stamp = conv.point_stamped_to_tuple(latest.msg)[2]
-                if abs(stamp - stamp_s) <= slop:
+                xyz, _, stamp = conv.point_stamped_to_tuple(latest.msg)
+                key = (tuple(float(v) for v in xyz), float(stamp))
+                if any((p.working.xyz, p.working.stamp_s) == key if stream == WORKING else
+                       (p.destination.xyz, p.destination.stamp_s) == key for p in pairs):
                     self._latest[stream] = latest._replace(paired=True)
 
     def _point(self, stream: str, topic: str, settings: Settings, now_ns: int) -> Any:

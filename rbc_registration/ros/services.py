@@ -16,6 +16,7 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetF
 
 import re
 
+from ..core.constants import WORKING
 from ..core.scale import unit_mismatch
 from ..pipeline.residuals import fiducial_residuals
 from ..pipeline.snapshot import snapshot_path
@@ -190,6 +191,8 @@ class ServicesMixin:
         if record is None:
             response.success, response.message = False, f"no sample taken: {error}"
             return response
+        if self._settings.point_mode == "pair":   # not again when its stamp partner arrives
+            self._ingest.discard_point(WORKING, args.working_xyz, args.stamp_s)
         self._worker.notify()
         response.pair = samples.pair_message(record, args, self._settings)
         response.success = True

@@ -125,5 +125,13 @@ def test_two_outputs_onto_one_file_are_refused(tmp_path, capsys, files):
     assert cli.main(["plan", str(files["fid"]), "--candidates", str(files["tgt"]), "--json",
                      str(same), "--figure", str(same)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--json and --figure are the same file" in err[0], err
+    assert len(err) == 1 and "--figure" in err[0] and "are the same file" in err[0], err
     assert not same.exists()
+
+
+def test_evaluate_json_onto_a_file_of_its_out_dir_is_refused(tmp_path, capsys, files):
+    out = tmp_path / "out"
+    assert cli.main(["evaluate", str(files["bag"]), "--quiet", "--out", str(out), "--json",
+                     str(out / "report.md")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "one would overwrite the other" in err[0], err

@@ -165,3 +165,18 @@ def test_tetrahedra_without_masks_equal_the_masked_path():
     np.testing.assert_array_equal(idx, idx_mixed[:-1])
     np.testing.assert_array_equal(w, w_mixed[:-1])
     assert idx.dtype == idx_mixed.dtype == np.intp
+
+
+def test_a_thin_cell_the_registration_accepts_is_answered():
+    """Fiducials along a beam with 1e-4 off-axis spread: build_model accepts them, and the
+    factor of the bound beyond the fiducials must not refuse them afterwards (a review: every
+    answer raised 'cannot fix a rigid registration')."""
+    from scipy.spatial.transform import Rotation
+    rng = np.random.default_rng(0)
+    x = np.linspace(0, 1000, 30)[:, None] * np.ones(3) / np.sqrt(3)
+    x = x + rng.normal(scale=1e-4, size=x.shape)
+    y = x @ Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix().T + 50.0
+    m = build_model(x, y + rng.normal(scale=0.01, size=y.shape),
+                    ModelConfig(dimension=3, interpolation="kriging"))
+    a = m.answer(x[:2] + 1.0)
+    assert np.all(np.isfinite(a.destination)) and np.all(a.tre_bound > 0)

@@ -287,5 +287,18 @@ def test_exact_rigid_data_is_not_corrected_on_rounding(d):
     x, y = cell(4, j=30, d=d, bias=0.0, noise=0.0)
     m = build_model(x, y, ModelConfig(dimension=d))
     assert m.decision.cross_validation.resolution == pytest.approx(
-        1e-9 * max(np.abs(x).max(), np.abs(y).max()))
+        1e-13 * max(np.abs(x).max(), np.abs(y).max()))
     assert m.decision.method == "uncorrected" and m.decision.confident, m.decision.reason
+
+
+
+def test_a_far_origin_does_not_tie_real_differences():
+    """The RA-like cell in metres 5,000 km from the origin (UTM-like): the resolution grows with
+    the coordinates, and 1e-9 of them (5 mm) tied every difference (a review: uncorrected,
+    p = 1). Kriging is chosen as at the origin."""
+    from rbc_registration.core.synthetic import make_cell
+    c = make_cell("RA", 0)
+    x, y = np.array([m[0] for m in c.fiducial_measurements]), c.fiducial_truth
+    near = build_model(x * 1e-3, y * 1e-3, ModelConfig(dimension=2))
+    far = build_model(x * 1e-3, y * 1e-3 + [5e5, 5e6], ModelConfig(dimension=2))
+    assert near.decision.method == far.decision.method == "kriging"

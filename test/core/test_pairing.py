@@ -121,3 +121,22 @@ def test_points_slightly_out_of_order_within_the_slop_still_pair():
     p.add_working([2, 0, 0], "t", 10.000)     # back by less than the slop: no restart
     assert p.pending("working") == 2
     assert p.add_destination([1, 0, 0], "w", 10.011).pairs[0].working.xyz == (1, 0, 0)
+
+
+def test_a_late_point_does_not_cost_the_pairs_after_it():
+    """A point late by more than the slop but less than RESTART_AFTER is an ordinary late
+    point: the newer points buffered stay (a review: D1.0, W2.0, W1.0, D2.0 lost W2-D2)."""
+    p = StampPairer(slop=0.05)
+    pairs = []
+    for stream, stamp in [("destination", 1.0), ("working", 2.0), ("working", 1.0),
+                          ("destination", 2.0), ("working", 3.0), ("destination", 3.0)]:
+        pairs += p.add(stream, [stamp, 0, 0], "f", stamp).pairs
+    assert sorted(pr.stamp_s for pr in pairs) == [2.0, 3.0]    # D1.0 was stale when W1 came
+
+
+def test_discard_drops_one_buffered_point():
+    p = StampPairer(slop=0.05)
+    p.add_working([1, 2, 3], "t", 5.0)
+    assert not p.discard("working", [1, 2, 3], 5.1) and p.pending("working") == 1
+    assert p.discard("working", [1, 2, 3], 5.0) and p.pending("working") == 0
+    assert p.add_destination([0, 0, 0], "w", 5.0).pairs == ()

@@ -313,3 +313,27 @@ def test_appending_to_a_closed_journal_is_an_os_error(tmp_path):
     j.close()
     with pytest.raises(OSError, match="the journal is not open"):
         j.append(records()[0])
+
+
+def test_an_archive_that_cannot_create_the_new_journal_puts_the_old_one_back(tmp_path,
+                                                                            monkeypatch):
+    """The journal was moved, then the new one could not be created (EMFILE): the old one was
+    closed and left as .bak, so every later pair failed and a restart restored nothing."""
+    from rbc_registration.pipeline import journal as jmod
+
+    j = Journal(str(tmp_path), HEADER)
+    j.load()
+    j.append(records()[0])
+    real = jmod.open_private
+
+    def refuse(*args, **kwargs):
+        raise OSError(errno.EMFILE, "Too many open files")
+
+    monkeypatch.setattr(jmod, "open_private", refuse)
+    with pytest.raises(OSError, match="Too many open files"):
+        j.archive()
+    monkeypatch.setattr(jmod, "open_private", real)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [JOURNAL_NAME]
+    j.append(records()[1])
+    j.close()
+    assert Journal(str(tmp_path), HEADER).load()[0] == records()[:2]

@@ -31,11 +31,13 @@ def _point(xyz, frame):
 
 class TestTakeSample(NodeTestBase):
 
-    def send(self, node, topic, xyz, frame):
+    def send(self, node, topic, xyz, frame, stamp=0.0):
         """Publish one point (streaming drivers publish continuously; one is enough here)."""
         pub = self.publisher(node, PointStamped, topic)
         before = node._samples._latest.get(topic.split("_")[0])
-        pub.publish(_point(xyz, frame))
+        msg = _point(xyz, frame)
+        msg.header.stamp.sec = int(stamp)
+        pub.publish(msg)
         wait_for(lambda: node._samples._latest.get(topic.split("_")[0]) is not before,
                  what=f"{topic} received")
         self.ros.client.destroy_publisher(pub)
@@ -100,6 +102,21 @@ class TestTakeSample(NodeTestBase):
         assert node.status().n_measurements == 1
         self.send(node, "working_point", self.cell["working"][1], "tracker")   # no partner
         assert self.take(node, "H05").success and node.status().n_measurements == 2
+
+    def test_a_sampled_point_is_not_recorded_again_by_its_stamp_partner(self):
+        """Pair mode: a working point sampled while buffered was recorded again when its
+        destination partner arrived (a review: two identical measurements of H1)."""
+        node = self.make_node(sample_max_age=60.0)
+        self.send(node, "destination_point", self.cell["destination"][0], "world", stamp=1.0)
+        self.send(node, "working_point", self.cell["working"][0], "tracker", stamp=5.0)
+        assert node._ingest._pairer.pending("working") == 1        # buffered, no partner
+        r = self.take(node, "H1")
+        assert r.success, r.message
+        assert node._ingest._pairer.pending("working") == 0
+        self.send(node, "destination_point", self.cell["destination"][0], "world", stamp=5.0)
+        wait_for(lambda: node._ingest._pairer.pending("destination") == 1,
+                 what="the partner buffered")
+        assert node.status().n_measurements == 1
 
     @pytest.mark.skipif(not samples.TF2_ROS_MISSING, reason="tf2_ros is installed")
     def test_tf_source_is_refused_without_tf2_ros(self):
