@@ -137,9 +137,13 @@ class TestKillAndRestart(RosTestBase):
         try:
             wait_for(lambda: pub.get_subscription_count() > 0, 30, "the node's subscription")
             # Stream at ~500 Hz and SIGKILL the node in the middle of the stream, while it is
-            # receiving and journaling.
+            # receiving and journaling: once it has acknowledged some (under load its first
+            # status can come after the first quarter), right after the second quarter.
             published = 0
             while published < n // 2:
+                if published == n // 4:
+                    wait_for(lambda: any(s.n_measurements for s in statuses), 30,
+                             "a first acknowledgement")
                 pub.publish(pair_msg(cell, published, stamp_s=100.0 + published))
                 published += 1
                 time.sleep(0.002)
