@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..io.escape import terminal
-from .options import add_model_options, refuse_outputs_onto_inputs, warn_unit_mismatch
+from .options import add_model_options, refuse_outputs_onto_inputs, warn, warn_unit_mismatch
 
 #: The input topics that can be named, with what they carry.
 TOPIC_OPTIONS = (("fiducial", "fiducial_pairs", "FiducialPair"),
@@ -123,8 +123,14 @@ def run(args: argparse.Namespace) -> int:
         print("evaluate: interrupted", file=sys.stderr)
         return 130
     print_summary(ev)
+    from ..core.scale import implausible_metres
+    large = implausible_metres(ev.model.destination)
+    if large:
+        warn("evaluate", large)
     warn_unit_mismatch("evaluate", ev.model.working,
-                       ev.targets.working if ev.targets is not None else None, ev.report)
+                       ev.targets.working if ev.targets is not None else None, ev.report,
+                       ev.model.destination,
+                       ev.targets.destination if ev.targets is not None else None)
     if args.json:
         write_json(ev.report, args.json)
         print(f"wrote {terminal(args.json)}")

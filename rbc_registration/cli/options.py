@@ -69,12 +69,16 @@ def warn(command: str, text: str) -> None:
     print(f"rbc-registration {command}: warning: {terminal(text)}", file=sys.stderr)
 
 
-def warn_unit_mismatch(command: str, fiducials: object, targets: object, report: dict) -> None:
+def warn_unit_mismatch(command: str, fiducials: object, targets: object, report: dict,
+                       destination: object = None, truth: object = None) -> None:
     """One warning line when every target is out of the hull at a scale ~100x or more off the
-    fiducials' (:func:`rbc_registration.core.scale.unit_mismatch`).
+    fiducials' (:func:`rbc_registration.core.scale.unit_mismatch`); another when the targets'
+    truth is that far off the fiducials' destination points.
 
     :param fiducials: the model's fiducials, working frame; :param targets: the report's
-        targets, working frame (``None``: none); :param report: the report (its hull flags).
+        targets, working frame (``None``: none); :param report: the report (its hull flags);
+    :param destination: the fiducials in the destination frame; :param truth: the targets'
+        true points there (``None``: no truth).
     """
     from ..core.scale import unit_mismatch
 
@@ -83,6 +87,12 @@ def warn_unit_mismatch(command: str, fiducials: object, targets: object, report:
     text = unit_mismatch(fiducials, targets, [t["inside_hull"] for t in report["targets"]])
     if text:
         warn(command, text)
+    if truth is not None and destination is not None:
+        # no hull in the destination frame: the size ratio alone (100x) decides
+        text = unit_mismatch(destination, truth, [False] * len(report["targets"]))
+        if text:
+            warn(command, "the targets' truth: " + text.replace("targets and fiducials",
+                                                                "target truth and fiducials"))
 
 
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:

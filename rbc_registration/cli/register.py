@@ -83,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     report = model_report(model, tgt.ids if tgt else (), tgt.working if tgt else None,
                           tgt.destination if tgt else None, loo, args.unit)
     print(format_report(report))
-    warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report)
+    warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report,
+                       model.destination, tgt.destination if tgt else None)
     if args.json:
         write_json(report, args.json)
         print(f"wrote {terminal(args.json)}")

@@ -89,3 +89,23 @@ def frame_mismatch(working: ArrayLike, destination: ArrayLike) -> Optional[str]:
     return (f"the destination frame looks mirrored against the working frame: a reflection fits "
             f"the fiducials with RMS residual {mirrored:.3g}, the best rotation only "
             f"{rotated:.3g}; check the handedness of the frames' axes")
+
+
+#: Fiducials farther than this from their centroid (RMS, metres) are unlikely in a cell recorded
+#: in metres (REP 103): a bag in millimetres reads 1000x too large.
+LARGEST_CELL_M = 100.0
+
+
+def implausible_metres(points: ArrayLike) -> Optional[str]:
+    """The warning for fiducials (metres) whose size looks like millimetres, or ``None``.
+
+    :param points: fiducials (J, d) in metres (a bag's, the node's).
+    :return: one line naming the size, or ``None`` below :data:`LARGEST_CELL_M`.
+    """
+    p = np.asarray(points, dtype=float)
+    size = _rms_radius(p, p.mean(axis=0)) if len(p) else 0.0
+    if not size > LARGEST_CELL_M:
+        return None
+    return (f"the fiducials' RMS distance from their centroid is {size:.4g} m: ROS data are in "
+            f"metres (REP 103); a recording in millimetres reads 1000x too large (and "
+            f"outlier_distance, merge_radius are metres)")

@@ -92,3 +92,17 @@ def test_a_few_targets_out_of_the_hull_are_no_unit_mismatch(tmp_path, capsys, mm
     write_targets(tmp_path / "t.csv", cell.target_ids, far)
     assert cli.main(["register", str(d / "f.csv"), "--targets", str(tmp_path / "t.csv")]) == 0
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("scale, warned", [(1e3, True), (1.0, False)])
+def test_target_truth_in_another_unit_gets_a_warning(tmp_path, capsys, mm_cell, scale, warned):
+    """The truth columns of TARGETS.csv (or a bag's targets) were never compared with the
+    fiducials: truth in another unit gave 'median TRE 320 m' without a word (a review)."""
+    d, cell = mm_cell
+    write_targets(tmp_path / "t.csv", cell.target_ids, cell.target_means,
+                  cell.target_truth * scale)
+    assert cli.main(["register", str(d / "f.csv"), "--targets", str(tmp_path / "t.csv")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert [line for line in err if "the targets' truth" in line and "unit mismatch" in line] \
+        == (err if warned else []), err
+    assert len(err) == (1 if warned else 0), err

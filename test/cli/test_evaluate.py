@@ -208,3 +208,17 @@ def test_evaluate_and_synth_bag_never_import_rclpy(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_a_bag_in_millimetres_gets_a_warning(tmp_path, capsys):
+    """A bag recorded in mm read as metres: outlier_distance (0.01 m) then cut its repeats and
+    sigma was 0.006 instead of 0.11 (a review), without a word. It is warned about now."""
+    def mm(m):
+        return m._replace(xyz=tuple(1e3 * v for v in m.xyz),
+                          destination=tuple(1e3 * v for v in m.destination))
+    bag = tmp_path / "bag"
+    write_bag(bag, [mm(m) for m in cell_messages(make_cell("RA", seed=0))], progress=False)
+    assert cli.main(["evaluate", str(bag), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the fiducials' RMS distance from their centroid is" in err
+    assert "ROS data are in metres (REP 103)" in err

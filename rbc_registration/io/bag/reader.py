@@ -23,9 +23,17 @@ from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents,
                       PairMessage, PointMessage, RawMessage, Topics)
 from .typestore import check_definitions, make_typestore
 
-#: Errors of rosbags and of the storage libraries on a bad or truncated file.
-_READ_ERRORS = (ReaderError, SerdeError, TypesysError, sqlite3.Error, struct.error, OSError,
-                EOFError, KeyError, IndexError, ValueError, UnicodeDecodeError, AssertionError)
+try:        # rosbags reads .db3 files through apsw where it is installed (its errors while
+    import apsw     # iterating are not wrapped); the standard library's sqlite3 otherwise
+    _SQLITE_ERRORS: tuple[type[BaseException], ...] = (sqlite3.Error, apsw.Error)
+except ImportError:             # pragma: no cover - depends on the rosbags installation
+    _SQLITE_ERRORS = (sqlite3.Error,)
+
+#: Errors of rosbags and of the storage libraries on a bad or truncated file (a corrupt mcap
+#: length field raises OverflowError).
+_READ_ERRORS = (ReaderError, SerdeError, TypesysError, struct.error, OSError, EOFError, KeyError,
+                IndexError, ValueError, UnicodeDecodeError, AssertionError,
+                OverflowError) + _SQLITE_ERRORS
 
 
 @contextmanager
@@ -88,6 +96,11 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
     :raises BagError: when the bag cannot be read, a required topic is missing, a topic has the
         wrong type, the bag holds none of the input topics, or only one of the point topics.
     """
+    if len(set(topics[:4])) < 4:
+        raise BagError(f"bag {path}: each topic can be one input only, got fiducial pairs "
+                       f"{topics.fiducial_pairs}, working points {topics.working_point}, "
+                       f"destination points {topics.destination_point}, targets "
+                       f"{topics.targets}")
     expected = {topics.fiducial_pairs: FIDUCIAL_PAIR, topics.working_point: POINT_STAMPED,
                 topics.destination_point: POINT_STAMPED, topics.targets: FIDUCIAL_PAIR}
     store = make_typestore()
@@ -139,6 +152,8 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                     ins.append(PointMessage(log_ns, stream, _xyz(msg.point),
                                             msg.header.frame_id, _stamp(msg.header)))
                 bar.update()
+        except BagError:
+            raise                       # already names the bag and the message
         except _READ_ERRORS as exc:
             raise BagError(f"bag {path}: truncated or corrupt after {k} message(s): "
                            f"{_describe(exc)}") from None
