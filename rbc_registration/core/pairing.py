@@ -65,10 +65,13 @@ class DroppedPoint(NamedTuple):
 
 
 class PairingResult(NamedTuple):
-    """What one :meth:`StampPairer.add` produced: new pairs and newly dropped points."""
+    """What one :meth:`StampPairer.add` produced: new pairs and newly dropped points;
+    ``repeated``: the point has the same stamp as the stream's previous one (stamps that do not
+    tell measurements apart: pairing then goes by arrival order)."""
 
     pairs: tuple[PointPair, ...]
     dropped: tuple[DroppedPoint, ...]
+    repeated: bool = False
 
 
 class StampPairer:
@@ -86,6 +89,7 @@ class StampPairer:
         self.max_buffer = max_buffer
         self._buffers: dict[str, deque[StampedPoint]] = {WORKING: deque(), DESTINATION: deque()}
         self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
+        self._previous: dict[str, float] = {}       # each stream's last stamp
         self.n_pairs = 0
         self.n_dropped = 0
 
@@ -110,6 +114,7 @@ class StampPairer:
         for buf in self._buffers.values():
             buf.clear()
         self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
+        self._previous = {}
 
     def add_working(self, xyz: ArrayLike, frame_id: str, stamp_s: float) -> PairingResult:
         """Add a working-frame point; see :meth:`add`."""
@@ -145,6 +150,8 @@ class StampPairer:
         point = StampedPoint((float(arr[0]), float(arr[1]), float(arr[2])), str(frame_id), stamp)
         other = _OTHER[stream]
         dropped: list[DroppedPoint] = []
+        repeated = self._previous.get(stream) == stamp
+        self._previous[stream] = stamp
         if stamp < self._latest[stream] - max(self._slop, RESTART_AFTER):   # back in time
             self._restart(stream, stamp, dropped)
         self._latest[stream] = max(self._latest[stream], stamp)
@@ -167,7 +174,7 @@ class StampPairer:
                 dropped.append(DroppedPoint(stream, buf.popleft(), f"{stream} buffer full "
                                             f"({self.max_buffer} unmatched points)"))
         self.n_dropped += len(dropped)
-        return PairingResult(pairs, tuple(dropped))
+        return PairingResult(pairs, tuple(dropped), repeated)
 
     def discard(self, stream: str, xyz: ArrayLike, stamp_s: float) -> bool:
         """Drop the buffered point of ``stream`` at ``xyz`` and ``stamp_s`` (recorded otherwise,

@@ -34,6 +34,13 @@ class PairArgs(NamedTuple):
     stamp_s: float
 
 
+def repeated_stamps(stream: str, stamp_s: float) -> str:
+    """The warning (once per stream) for point stamps that repeat."""
+    return (f"{stream} point stamps repeat ({stamp_s:.9f} s twice in a row): pairing by stamp "
+            "then goes by arrival order, and one lost message pairs every later point wrongly; "
+            "stamp each measurement, or publish FiducialPair")
+
+
 class Counters(NamedTuple):
     """Accumulator counters at one moment (read under the ingestion lock)."""
 
@@ -69,6 +76,7 @@ class Ingest:
         self._log_clock = log_clock
         self._lock = threading.Lock()
         self._last_log: dict[str, float] = {}
+        self._repeat_warned: set[str] = set()   # streams whose repeated stamps were logged
         self.journal_error = ""      # the last journal write error; "" once a write succeeds
         self.n_journal_failures = 0  # records refused because the journal could not be written
         self.n_replay_skipped = 0    # journal lines skipped on replay (corrupt or invalid)
@@ -155,6 +163,9 @@ class Ingest:
             for dropped in result.dropped:
                 self._rejected(self._acc.reject("malformed", f"unpaired {dropped.stream} point "
                                                 f"dropped: {dropped.reason}"))
+            if result.repeated and stream not in self._repeat_warned:
+                self._repeat_warned.add(stream)
+                self._log.warning(repeated_stamps(stream, stamp_s))
             return [pair for pair in result.pairs if self._measurement_locked(PairArgs(
                 None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
                 pair.destination.frame_id, pair.stamp_s))[0] is not None]

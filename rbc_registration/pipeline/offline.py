@@ -158,4 +158,5 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
         targets = recorded_targets(recorded, settings)
     notes = ("targets have no truth: TRE not computed",) \
         if targets is not None and targets.destination is None else ()
+    notes += tuple(line for line in acc.log_lines if "point stamps repeat" in line)
     return OfflineModel(state.model, acc.fiducials, settings, targets, acc.rejected, notes)

@@ -222,3 +222,12 @@ def test_a_bag_in_millimetres_gets_a_warning(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "warning: the fiducials' RMS distance from their centroid is" in err
     assert "ROS data are in metres (REP 103)" in err
+
+
+def test_point_stamps_that_repeat_are_noted(tmp_path, capsys):
+    msgs = [m._replace(stamp_ns=0) for m in cell_messages(make_cell("RA", seed=0), points=True)]
+    bag = tmp_path / "bag"
+    write_bag(bag, msgs, progress=False)
+    cli.main(["evaluate", str(bag), "--quiet"])
+    out = capsys.readouterr().out
+    assert out.count("point stamps repeat") == 2, out      # once per stream

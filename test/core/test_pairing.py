@@ -140,3 +140,14 @@ def test_discard_drops_one_buffered_point():
     assert not p.discard("working", [1, 2, 3], 5.1) and p.pending("working") == 1
     assert p.discard("working", [1, 2, 3], 5.0) and p.pending("working") == 0
     assert p.add_destination([0, 0, 0], "w", 5.0).pairs == ()
+
+
+def test_repeated_stamps_are_flagged():
+    """Stamps that do not tell measurements apart (a driver that stamps 0): pairing goes by
+    arrival order then, and one lost message pairs every later point wrongly (a review: FRE
+    0.13 m, corrections applied). The pairer flags it for the warning."""
+    p = StampPairer(slop=0.02)
+    assert not p.add_working([0, 0, 0], "t", 0.0).repeated
+    assert p.add_working([1, 0, 0], "t", 0.0).repeated
+    assert not p.add_destination([0, 0, 0], "w", 0.0).repeated     # per stream
+    assert not p.add_working([2, 0, 0], "t", 1.0).repeated
