@@ -89,10 +89,10 @@ def warn_unit_mismatch(command: str, fiducials: object, targets: object, report:
         warn(command, text)
     if truth is not None and destination is not None:
         # no hull in the destination frame: the size ratio alone (100x) decides
-        text = unit_mismatch(destination, truth, [False] * len(report["targets"]))
+        text = unit_mismatch(destination, truth, [False] * len(report["targets"]),
+                             "target truth")
         if text:
-            warn(command, "the targets' truth: " + text.replace("targets and fiducials",
-                                                                "target truth and fiducials"))
+            warn(command, "the targets' truth: " + text)
 
 
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:

@@ -56,6 +56,11 @@ K_FOLDS = 10
 RESOLUTION = 1e-13
 
 
+def rounding(*points: ArrayLike) -> float:
+    """:data:`RESOLUTION` x the largest coordinate of ``points`` (arrays of points)."""
+    return RESOLUTION * max(float(np.abs(np.asarray(p, dtype=np.float64)).max()) for p in points)
+
+
 class FoldScheme(NamedTuple):
     """How the fiducials are split: ``kind`` one of :data:`~.constants.FOLD_KINDS` and the number
     of folds (J for leave-one-out)."""
@@ -282,5 +287,4 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
         e.setflags(write=False)
     if scale is not None:
         scale.setflags(write=False)
-    resolution = RESOLUTION * max(float(np.abs(x).max()), float(np.abs(y).max()))
-    return CrossValidation(scheme, errors, scale, unavailable, resolution)
+    return CrossValidation(scheme, errors, scale, unavailable, rounding(x, y))

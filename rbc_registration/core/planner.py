@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
                              pooled_median, target_noise)
-from .crossval import RESOLUTION
+from .crossval import rounding
 from .interpolation import HullTest
 from .repeats import typical_spacing
 from .validation import as_points, check_spread
@@ -182,8 +182,8 @@ def unresolved_bias(fiducials: ArrayLike, error_model: ExpectedErrorModel) -> Op
     spacing = typical_spacing(x)
     bias = error_model.signal_std * math.sqrt(error_model.dimension)
     noise = math.sqrt(float(np.trace(error_model.noise_covariance)))
-    rounding = RESOLUTION * float(np.abs(x).max())    # exact data: a "bias" of rounding
-    if error_model.length_scale >= spacing or bias <= max(noise, rounding):
+    # exact data: a "bias" of rounding
+    if error_model.length_scale >= spacing or bias <= max(noise, rounding(x)):
         return None
     return (f"the fitted bias length scale ({error_model.length_scale:.4g}) is shorter than the "
             f"fiducials' spacing ({spacing:.4g}) while the bias ({bias:.4g}) exceeds the noise "

@@ -118,27 +118,19 @@ class FitGeometry:
         dp = frame.design(frame.origin + frame.scale * probes)
         f2 = np.einsum("kai,ij,kaj->k", dp, g_inv, dp)
         c, plus, minus = f2[0], f2[1:1 + d], f2[1 + d:1 + 2 * d]
-        self._b = (plus - minus) / 2
+        b = (plus - minus) / 2
         h = np.diag((plus + minus) / 2 - c)
         pairs = iter(f2[1 + 2 * d:])
         for i in range(d):
             for j in range(i + 1, d):
-                h[i, j] = h[j, i] = (next(pairs) - c - self._b[i] - self._b[j] - h[i, i]
-                                     - h[j, j]) / 2
-        self._c, self._h = float(c), h
+                h[i, j] = h[j, i] = (next(pairs) - c - b[i] - b[j] - h[i, i] - h[j, j]) / 2
         self._origin, self._inv_scale = frame.origin, 1.0 / frame.scale
-        self.reference = float(np.sqrt(self._squared(x).max()))
+        u = (x - self._origin) * self._inv_scale
+        r2 = float((c + u @ b + np.einsum("ki,ij,kj->k", u, h, u)).max())
+        #: max_j f(X_j), the factor's largest value at the fiducials.
+        self.reference = math.sqrt(r2)
         # beyond() in one pass: the coefficients over reference^2
-        r2 = self.reference ** 2
-        self._cr, self._br, self._hr = self._c / r2, self._b / r2, self._h / r2
-
-    def _squared(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
-        u = (points - self._origin) * self._inv_scale
-        return self._c + u @ self._b + np.einsum("ki,ij,kj->k", u, self._h, u)
-
-    def factor(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
-        """f at ``points`` (K, d), validated by the caller."""
-        return np.sqrt(np.maximum(self._squared(points), 0.0))
+        self._cr, self._br, self._hr = float(c) / r2, b / r2, h / r2
 
     def beyond(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
         """max(1, f(T) / max_j f(X_j)) at ``points`` (K, d)."""

@@ -28,13 +28,14 @@ def _rms_radius(points: np.ndarray, centre: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((points - centre) ** 2, axis=1))))
 
 
-def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: ArrayLike
-                  ) -> Optional[str]:
+def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: ArrayLike,
+                  what: str = "targets") -> Optional[str]:
     """The warning for targets that look like they are in another unit than the fiducials.
 
     :param fiducials: fiducial locations (J, d), working frame.
     :param targets: target locations (K, d), working frame.
     :param inside_hull: (K,) the interpolation's inside-hull flags.
+    :param what: what the points are, for the message (e.g. ``target truth``).
     :return: one line naming the likely mismatch and the factor, or ``None``.
     """
     f = np.asarray(fiducials, dtype=float)
@@ -54,7 +55,7 @@ def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: ArrayLi
     else:
         return None
     return (f"all {len(t)} targets are outside the fiducials' hull and ~{ratio:.3g}x {how}: "
-            "likely a unit mismatch between targets and fiducials (e.g. m vs mm)")
+            f"likely a unit mismatch between {what} and fiducials (e.g. m vs mm)")
 
 
 def frame_mismatch(working: ArrayLike, destination: ArrayLike) -> Optional[str]:

@@ -76,7 +76,8 @@ class Ingest:
         self._log_clock = log_clock
         self._lock = threading.Lock()
         self._last_log: dict[str, float] = {}
-        self._repeat_warned: set[str] = set()   # streams whose repeated stamps were logged
+        #: The warnings logged for point stamps that repeat (one per stream at most).
+        self.stamp_warnings: dict[str, str] = {}
         self.journal_error = ""      # the last journal write error; "" once a write succeeds
         self.n_journal_failures = 0  # records refused because the journal could not be written
         self.n_replay_skipped = 0    # journal lines skipped on replay (corrupt or invalid)
@@ -163,9 +164,9 @@ class Ingest:
             for dropped in result.dropped:
                 self._rejected(self._acc.reject("malformed", f"unpaired {dropped.stream} point "
                                                 f"dropped: {dropped.reason}"))
-            if result.repeated and stream not in self._repeat_warned:
-                self._repeat_warned.add(stream)
-                self._log.warning(repeated_stamps(stream, stamp_s))
+            if result.repeated and stream not in self.stamp_warnings:
+                self.stamp_warnings[stream] = repeated_stamps(stream, stamp_s)
+                self._log.warning(self.stamp_warnings[stream])
             return [pair for pair in result.pairs if self._measurement_locked(PairArgs(
                 None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
                 pair.destination.frame_id, pair.stamp_s))[0] is not None]

@@ -49,6 +49,9 @@ from .journal_records import (JOURNAL_NAME, JOURNAL_VERSION, MAX_JOURNAL_BYTES, 
                               record_to_json, seal, setup_digest, unseal)
 from .snapshot import SNAPSHOT_NAME, fsync_dir, write_atomic
 
+#: How the journal is opened for appending (created when missing).
+_APPEND_OR_CREATE = os.O_RDWR | os.O_APPEND | os.O_CREAT
+
 #: Re-exported: the record format lives in :mod:`.journal_records`.
 __all__ = ["JOURNAL_NAME", "JOURNAL_VERSION", "Journal", "JournalMismatch", "record_from_json",
            "record_to_json"]
@@ -85,7 +88,7 @@ class Journal:
         :raises NotARegularFile: when the journal is a symlink, FIFO, device or directory.
         """
         self.close()
-        fd = open_private(self.path, os.O_RDWR | os.O_APPEND | os.O_CREAT)
+        fd = open_private(self.path, _APPEND_OR_CREATE)
         try:
             data = read_fd(fd, self.path, MAX_JOURNAL_BYTES)
             records, warnings, good_end, version = self._parse(data)
@@ -183,7 +186,7 @@ class Journal:
         """Open for appending after ``truncate_to`` bytes; returns a warning when a new
         journal's header cannot be written yet (it is retried with the first record)."""
         if self._fd is None:
-            self._fd = open_private(self.path, os.O_RDWR | os.O_APPEND | os.O_CREAT)
+            self._fd = open_private(self.path, _APPEND_OR_CREATE)
         fd = self._fd
         if os.fstat(fd).st_size != truncate_to:
             os.ftruncate(fd, truncate_to)
@@ -253,7 +256,7 @@ class Journal:
         if archived:
             os.replace(self.path, archived)     # the open descriptor moves with the file
         try:
-            fd = open_private(self.path, os.O_RDWR | os.O_APPEND | os.O_CREAT)
+            fd = open_private(self.path, _APPEND_OR_CREATE)
         except OSError:
             if archived:                        # put it back: the journal stays as it was
                 os.replace(archived, self.path)

@@ -31,11 +31,13 @@ class EvaluationError(ValueError):
 
 
 class Accumulated(NamedTuple):
-    """The fiducials after ingestion, rejections by reason and the log lines of the rejections."""
+    """The fiducials after ingestion, rejections by reason, the log lines of the rejections and
+    the warnings about point stamps that repeat."""
 
     fiducials: FiducialSet
     rejected: dict[str, int]
     log_lines: tuple[str, ...]
+    stamp_warnings: tuple[str, ...] = ()
 
 
 class OfflineModel(NamedTuple):
@@ -100,7 +102,8 @@ def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
                                         m.working_frame, m.destination_frame, m.stamp_s))
         else:
             ingest.point(m.stream, m.xyz, m.frame_id, m.stamp_s)
-    return Accumulated(ingest.fiducial_set(), dict(acc.rejected), tuple(log.lines))
+    return Accumulated(ingest.fiducial_set(), dict(acc.rejected), tuple(log.lines),
+                       tuple(ingest.stamp_warnings.values()))
 
 
 def recorded_targets(targets: Sequence[PairMessage], settings: Settings) -> Optional[Targets]:
@@ -158,5 +161,5 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
         targets = recorded_targets(recorded, settings)
     notes = ("targets have no truth: TRE not computed",) \
         if targets is not None and targets.destination is None else ()
-    notes += tuple(line for line in acc.log_lines if "point stamps repeat" in line)
+    notes += acc.stamp_warnings
     return OfflineModel(state.model, acc.fiducials, settings, targets, acc.rejected, notes)
