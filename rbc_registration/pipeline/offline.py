@@ -106,9 +106,13 @@ def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
                        tuple(ingest.stamp_warnings.values()))
 
 
-def recorded_targets(targets: Sequence[PairMessage], settings: Settings) -> Optional[Targets]:
+def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
+                     source: str = "input") -> Optional[Targets]:
     """Targets from recorded ``FiducialPair`` targets, repeats of an id averaged (first-seen
     order); truth only when every target has a finite destination point.
+
+    :param source: names the data in error messages (e.g. the bag's path); every message also
+        names the target's id and the target message's number (from 1, in bag order).
 
     :raises EvaluationError: for a target in another frame than the node's, a non-finite
         working point, or a repeat farther than ``outlier_distance`` from the mean of its id's
@@ -117,26 +121,30 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings) -> Opti
     if not targets:
         return None
     d = settings.dimension
+    ids = [m.fiducial_id or f"target-{k}" for k, m in enumerate(targets)]
+
+    def which(k: int) -> str:
+        return f"{source}: target {ids[k]!r} (target message {k + 1} of {len(targets)})"
+
     for k, m in enumerate(targets):
         for name, got, want in (("working", m.working_frame, settings.working_frame),
                                 ("destination", m.destination_frame, settings.destination_frame)):
             if got and got != want:
-                raise EvaluationError(f"target {m.fiducial_id or k!r}: {name} frame {got!r}, "
-                                      f"expected {want!r}")
-    ids = [m.fiducial_id or f"target-{k}" for k, m in enumerate(targets)]
+                raise EvaluationError(f"{which(k)}: {name} frame {got!r}, expected {want!r}")
     work = [m.working[:d] for m in targets]
     dest = [m.destination[:d] for m in targets]
-    if not np.all(np.isfinite(work)):
-        raise EvaluationError("a target's working point has NaN or inf")
+    bad = np.flatnonzero(~np.isfinite(np.asarray(work, dtype=float)).all(axis=1))
+    if bad.size:
+        raise EvaluationError(f"{which(int(bad[0]))}: working point has NaN or inf "
+                              f"({bad.size} such target message(s))")
     limit = settings.outlier_distance
     frames = [("working", work, limit, "outlier_distance")]
     if np.all(np.isfinite(dest)):
         frames.append(("destination", dest, limit, "outlier_distance"))
     conflict = first_conflict(ids, frames)
     if conflict is not None:
-        raise EvaluationError(f"recorded targets: target message {conflict.row + 1} of "
-                              f"{len(targets)} conflicts with the earlier repeats of its id: "
-                              f"{conflict.message}")
+        raise EvaluationError(f"{which(conflict.row)}: conflicts with the earlier repeats of its "
+                              f"id: {conflict.message}")
     unique, (working, truth) = mean_by_id(ids, work, dest)
     return Targets(unique, working, truth if np.all(np.isfinite(truth)) else None, "bag")
 
@@ -158,7 +166,7 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
                               + (f" ({sum(acc.rejected.values())} measurement(s) rejected, e.g. "
                                  f"{acc.log_lines[0]})" if acc.log_lines else ""))
     if targets is None:
-        targets = recorded_targets(recorded, settings)
+        targets = recorded_targets(recorded, settings, source)
     notes = ("targets have no truth: TRE not computed",) \
         if targets is not None and targets.destination is None else ()
     notes += acc.stamp_warnings
