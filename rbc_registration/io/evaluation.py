@@ -62,7 +62,8 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                      "rejected": ev.rejected, "disabled": list(ev.fiducials.disabled_ids),
                      "targets_source": targets.source if targets else None,
                      "other_topics": dict(contents.other_topics)}
-    return Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected, ev.notes)
+    return Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
+                      contents.count_mismatches + ev.notes)
 
 
 # -- report directory --------------------------------------------------------------------------
@@ -154,6 +155,7 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
              f"{rep['dim']}D; rejected: " + (", ".join(f"{n} {r}" for r, n in
                                                       bag["rejected"].items() if n) or "none")
              + ". Lengths in mm (report.json: metres).", "",
+             *[f"Note: {md_text(note)}" for note in ev.notes], *([""] if ev.notes else []),
              "## Table 1 values", "",
              "| sigma | sigma_axis | sigma_L0 | rho | sigma_L1 | sigma_L2 | rho rule |",
              "|---|---|---|---|---|---|---|",

@@ -86,7 +86,8 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
         raise ValueError(f"rate must be in [{low:g}, {high:g}], got {rate!r}")
     if not 0 <= wait <= MAX_REPLAY_WAIT:
         raise ValueError(f"wait must be in [0, {MAX_REPLAY_WAIT:g}] s, got {wait!r}")
-    messages = read_raw(bag, topics, progress=progress)
+    messages = read_raw(bag, topics, progress=progress,
+                        warn=lambda line: log(f"replay: {terminal(line)}"))
     types = {m.topic: m.msgtype for m in messages}
     classes, skipped = {}, []
     for topic, msgtype in types.items():

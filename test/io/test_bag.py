@@ -233,6 +233,32 @@ def test_a_corrupt_database_page_is_one_bag_error(tmp_path):
         read_bag(bag, progress=False)
 
 
+def test_messages_the_metadata_lists_but_the_storage_lost_are_reported(tmp_path, bags, capsys):
+    """Rows deleted from the .db3 behind its metadata.yaml: rosbags reads what is left without a
+    word; read_bag, read_raw and evaluate (a note, also in report.md) say how many are missing."""
+    import sqlite3
+    assert read_bag(bags["sqlite3"], progress=False).count_mismatches == ()
+    bag = tmp_path / "lost"
+    shutil.copytree(bags["sqlite3"], bag)
+    with sqlite3.connect(storage_file(bag)) as db:
+        (topic_id,) = db.execute("SELECT id FROM topics WHERE name = ?",
+                                 (DEFAULT_TOPICS.fiducial_pairs,)).fetchone()
+        db.execute("DELETE FROM messages WHERE id IN (SELECT id FROM messages WHERE topic_id = ? "
+                   "LIMIT 7)", (topic_id,))
+    contents = read_bag(bag, progress=False)
+    listed = contents.counts[DEFAULT_TOPICS.fiducial_pairs] + 7
+    (line,) = contents.count_mismatches
+    assert f"{DEFAULT_TOPICS.fiducial_pairs}: the metadata lists {listed} message(s), " \
+           f"{listed - 7} were read" in line and str(bag) in line
+    warned = []
+    read_raw(bag, progress=False, warn=warned.append)
+    assert warned == [line]
+    assert cli.main(["evaluate", str(bag), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    assert f"note: {line}" in capsys.readouterr().out
+    assert f"lists {listed} message\\(s\\), {listed - 7} were read" in (
+        tmp_path / "out" / "report.md").read_text()          # Markdown-escaped
+
+
 def test_one_topic_named_for_two_inputs_is_refused(bags):
     same = DEFAULT_TOPICS._replace(targets=DEFAULT_TOPICS.fiducial_pairs)
     with pytest.raises(BagError, match="each topic can be one input only"):

@@ -11,7 +11,7 @@ import sqlite3
 import struct
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Optional, Sequence, Union
+from typing import Any, Callable, Iterator, Optional, Sequence, Union
 
 from rosbags.rosbag2 import Reader, ReaderError
 from rosbags.serde import SerdeError
@@ -159,12 +159,30 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                            f"{_describe(exc)}") from None
         bar.done()
     other = {t: ty for t, ty in types.items() if t not in expected}
-    return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other)
+    return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other,
+                       count_mismatches(path, conns, counts))
+
+
+def count_mismatches(path: Union[str, Path], conns: Sequence[Any], read: dict[str, int]
+                     ) -> tuple[str, ...]:
+    """One line per topic whose count in the bag's metadata (``message_count`` of its
+    connections) differs from the messages read: the storage lost messages, or another storage
+    file was put in its place."""
+    listed: dict[str, int] = {}
+    for c in conns:
+        listed[c.topic] = listed.get(c.topic, 0) + int(c.msgcount)
+    return tuple(f"bag {path}: {topic}: the metadata lists {n} message(s), {read.get(topic, 0)} "
+                 "were read (the storage and its metadata disagree: messages lost?)"
+                 for topic, n in sorted(listed.items()) if n != read.get(topic, 0))
 
 
 def read_raw(path: Union[str, Path], topics: Optional[Sequence[str]] = None,
-             progress: bool = True) -> list[RawMessage]:
+             progress: bool = True, warn: Optional[Callable[[str], None]] = None
+             ) -> list[RawMessage]:
     """All messages of ``topics`` (default: every topic) in receive-time order, serialized.
+
+    :param warn: called with each line of :func:`count_mismatches` (messages the metadata lists
+        that were not read, or the other way round).
 
     :raises BagError: when the bag cannot be read, a named topic is missing or a type has no
         definition or another definition than this installation's.
@@ -191,5 +209,11 @@ def read_raw(path: Union[str, Path], topics: Optional[Sequence[str]] = None,
             raise BagError(f"bag {path}: truncated or corrupt after {len(out)} message(s): "
                            f"{_describe(exc)}") from None
         bar.done()
+    if warn is not None:
+        read: dict[str, int] = {}
+        for m in out:
+            read[m.topic] = read.get(m.topic, 0) + 1
+        for line in count_mismatches(path, conns, read):
+            warn(line)
     out.sort(key=lambda m: m.log_ns)
     return out

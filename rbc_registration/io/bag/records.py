@@ -63,13 +63,15 @@ DEFAULT_TOPICS = Topics.for_node()
 
 class BagContents(NamedTuple):
     """What :func:`read_bag` found: the node's inputs in bag (receive-time) order, the targets,
-    message counts per topic and the other topics of the bag (name -> type)."""
+    message counts per topic, the other topics of the bag (name -> type) and a line per topic
+    whose metadata count differs from the messages read."""
 
     path: Path
     inputs: tuple[Union[PairMessage, PointMessage], ...]
     targets: tuple[PairMessage, ...]
     counts: dict[str, int]
     other_topics: dict[str, str]
+    count_mismatches: tuple[str, ...] = ()
 
 
 class RawMessage(NamedTuple):
