@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import re
 import reprlib
 from datetime import datetime
 from typing import Any, Optional, Sequence
@@ -221,9 +222,31 @@ def optional_length(name: str, value: Optional[Any]) -> Optional[float]:
 
 
 
+#: A number as a calibration file writes it: decimal digits, a point, an exponent (and YAML's
+#: .inf/.nan, which the field checks refuse with their own message).
+_DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?|[-+]?\.(inf|Inf|INF)|\.(nan|NaN|NAN)")
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
     """``yaml.SafeLoader`` that refuses a mapping with a key twice (the plain loader keeps the
-    last: an edited file with two ``translation`` blocks would load the second silently)."""
+    last: an edited file with two ``translation`` blocks would load the second silently), and a
+    number YAML 1.1 reads otherwise than it looks: ``1:20`` (sexagesimal, 80), ``012`` (octal,
+    10), ``0x1f``, ``0b11``, ``1_000``."""
+
+    def _number(self, node: Any, construct: Any) -> Any:
+        text = str(node.value)
+        ambiguous = not _DECIMAL.fullmatch(text) or re.fullmatch(r"[-+]?0\d+", text)
+        if ambiguous:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"the number {text!r} is not plain decimal (YAML 1.1 reads it as "
+                f"{construct(self, node)!r}): write it in decimal, or quote it", node.start_mark)
+        return construct(self, node)
+
+    def construct_yaml_int(self, node: Any) -> Any:
+        return self._number(node, yaml.SafeLoader.construct_yaml_int)
+
+    def construct_yaml_float(self, node: Any) -> Any:
+        return self._number(node, yaml.SafeLoader.construct_yaml_float)
 
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         seen: set = set()
@@ -234,6 +257,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                     None, None, f"found the key {key!r} twice", key_node.start_mark)
             seen.add(key)
         return super().construct_mapping(node, deep)
+
+
+_UniqueKeyLoader.add_constructor("tag:yaml.org,2002:int", _UniqueKeyLoader.construct_yaml_int)
+_UniqueKeyLoader.add_constructor("tag:yaml.org,2002:float", _UniqueKeyLoader.construct_yaml_float)
 
 
 def load_yaml(text: str) -> Any:

@@ -283,6 +283,23 @@ def test_yaml_timestamp_is_accepted(tmp_path):
     assert read_calibration(str(path)) == make()
 
 
+@pytest.mark.parametrize("written, read_as", [("1:20", "80"), ("012", "10"), ("0x1f", "31"),
+                                             ("1_000", "1000"), ("0:00:01.5", "1.5")])
+def test_numbers_yaml_reads_otherwise_than_they_look_are_refused(tmp_path, written, read_as):
+    """YAML 1.1 reads 1:20 as 80 (sexagesimal) and 012 as 10 (octal): a hand-edited
+    translation would load another value silently."""
+    path = tmp_path / "cal.yaml"
+    write_calibration(str(path), make())
+    text = path.read_text()
+    line = next(x for x in text.splitlines() if x.lstrip().startswith("fre_rms:"))
+    path.write_text(text.replace(line, line.split(":")[0] + f": {written}"))
+    with pytest.raises(ValueError, match=re.escape(f"the number '{written}' is not plain decimal "
+                                                   f"(YAML 1.1 reads it as {read_as}")):
+        read_calibration(str(path))
+    path.write_text(text)
+    assert read_calibration(str(path)) == make()        # what the writer writes is plain
+
+
 @pytest.mark.parametrize("content, message", [
     (b"- 1\n- 2\n", "the document must be a mapping of the fields of docs/CALIBRATION.md, got "
                     "[1, 2]"),
