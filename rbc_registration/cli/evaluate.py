@@ -112,7 +112,9 @@ def run(args: argparse.Namespace) -> int:
         settings = settings_for(dim, params)
         targets = None
         if args.targets:
-            table = read_targets(args.targets, dim)
+            # Repeats of one id are checked as the bag's recorded targets are: the node's
+            # outlier_distance (metres), so a one-id file is checked too.
+            table = read_targets(args.targets, dim, settings.outlier_distance)
             targets = Targets(table.ids, table.working, table.destination, str(args.targets))
             if contents.targets:
                 print(f"targets from {terminal(args.targets)} (the bag's targets topic is ignored)")

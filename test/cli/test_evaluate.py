@@ -189,6 +189,21 @@ def test_targets_without_truth_give_no_tre(tmp_path, capsys):
     assert "targets have no truth" in capsys.readouterr().out
 
 
+def test_a_one_id_targets_csv_is_checked_by_outlier_distance(tmp_path, capsys):
+    """Rows of one target id 0.4 m apart were averaged (a one-id file has no spacing of its
+    own); evaluate checks them by the node's outlier_distance, as it checks the bag's targets."""
+    write_bag(tmp_path / "bag", cell_messages(make_cell("RA", seed=0)), progress=False)
+    tgt = tmp_path / "t.csv"
+    tgt.write_text("id,wx,wy\nT,0.1,0.1\nT,0.5,0.1\n")
+    assert cli.main(["evaluate", str(tmp_path / "bag"), "--targets", str(tgt), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "outlier_distance 0.01" in err and "row 3" in err and len(err.strip().splitlines()) == 1
+    tgt.write_text("id,wx,wy\nT,0.1,0.1\nT,0.105,0.1\n")                 # 5 mm: one target
+    report = run_json(["evaluate", str(tmp_path / "bag"), "--targets", str(tgt), "--quiet"],
+                      tmp_path / "e.json")
+    assert [t["id"] for t in report["targets"]] == ["T"]           # the two rows averaged
+
+
 def test_too_few_fiducials_is_a_clear_error(tmp_path, capsys):
     msgs = [OutMessage(DEFAULT_TOPICS.fiducial_pairs, "pair", k * 20_000_000, "tracker",
                        (k * 0.1, 0.0, 0.0), f"F{k}", "world", (k * 0.1, 1.0, 0.0))
