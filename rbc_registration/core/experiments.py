@@ -1,7 +1,9 @@
 """The paper's experiments on synthetic cells: Table 1 and the data of Figs 2-5.
 
 For each cell and interpolation: sigma, sigma_L0..2 and rho (Table 1); TRE per target from the
-averaged measurements (uncorrected and corrected, Fig. 4 cases 1-2, Fig. 5); and, for cells with
+points as the paper processed them (:attr:`.SyntheticCell.fiducial_processed`: the averaged
+measurements of A and B, the single measurements of RA; uncorrected and corrected, Fig. 4 cases
+1-2, Fig. 5); and, for cells with
 repeats, the median over the N instantaneous datasets of TRE_c^(n) and TRE_u^(n) (Fig. 4 case 3),
 each dataset processed on its own (a single measurement of every fiducial and target).
 """
@@ -18,6 +20,7 @@ from .constants import INTERPOLATIONS, DecisionMode
 from .evaluation import TargetErrors, target_errors
 from .mismatch import pairwise_mismatch
 from .model import ModelConfig, RbcModel, build_model
+from .noise import repeat_stats, sigma_from_stats
 from .synthetic import SyntheticCell
 
 
@@ -35,7 +38,7 @@ class CellResult:
     """Everything the report, JSON and figures of one cell need."""
 
     cell: SyntheticCell
-    model: RbcModel                                    # from averaged fiducials, paper interp.
+    model: RbcModel                                    # fiducial_processed, paper interp.
     mismatch: tuple[NDArray[np.float64], ...]          # L before and after each step (averaged)
     instantaneous_mismatch: Optional[tuple[NDArray[np.float64], ...]]  # (N, bins) per stage
     histogram_edges: tuple[NDArray[np.float64], ...]
@@ -80,19 +83,27 @@ def run_cell(cell: SyntheticCell, config: Optional[ModelConfig] = None,
     """
     base = config or ModelConfig()
     base = replace(base, dimension=cell.spec.dimension)
-    x = cell.fiducial_means
+    x = cell.fiducial_processed          # A, B: the means; RA: single measurements (the paper)
     y = cell.fiducial_truth
+    if cell.spec.sigma_l0_on_means:
+        repeats: Optional[tuple[NDArray[np.float64], ...]] = cell.fiducial_measurements
+    else:
+        # Each fiducial once, as measured; its repeats give sigma only (n_j = 1 for all, or the
+        # kriging would take the single measurements of repeated holes as averages).
+        repeats = None
+        if base.sigma is None and base.sigma_axis is None:
+            base = replace(base, sigma=sigma_from_stats(repeat_stats(cell.fiducial_measurements,
+                                                                     cell.spec.dimension)))
     results: dict[str, InterpolationResult] = {}
     models = {}
     for method in INTERPOLATIONS:
         cfg = replace(base, interpolation=method)
-        models[method] = build_model(x, y, cfg, ids=cell.fiducial_ids,
-                                     working_repeats=cell.fiducial_measurements)
+        models[method] = build_model(x, y, cfg, ids=cell.fiducial_ids, working_repeats=repeats)
     model = models["paper"]
     stages = model.restoration.stages(x)
     mismatch = tuple(pairwise_mismatch(p, y) for p in stages)
-    repeats = min(len(m) for m in cell.fiducial_measurements + cell.target_measurements)
-    n_sets = 0 if repeats < 2 else min(repeats, instantaneous_sets or repeats)
+    n_min = min(len(m) for m in cell.fiducial_measurements + cell.target_measurements)
+    n_sets = 0 if n_min < 2 else min(n_min, instantaneous_sets or n_min)
     edges = []
     inst_counts = None
     inst = None

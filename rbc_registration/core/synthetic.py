@@ -72,6 +72,14 @@ class SyntheticCell:
         return np.array([m.mean(axis=0) for m in self.fiducial_measurements])
 
     @property
+    def fiducial_processed(self) -> NDArray[np.float64]:
+        """The fiducials as the paper processed them: the means of the N measurements (A, B),
+        or the single (first) measurement of every hole (RA: its repeats only give sigma)."""
+        if self.spec.sigma_l0_on_means:
+            return self.fiducial_means
+        return np.array([m[0] for m in self.fiducial_measurements])
+
+    @property
     def target_means(self) -> NDArray[np.float64]:
         return np.array([m.mean(axis=0) for m in self.target_measurements])
 
@@ -149,16 +157,18 @@ def make_cell(name: str, seed: int = 0, repeats: Optional[int] = None) -> Synthe
     def working(true: NDArray[np.float64], amp: float) -> NDArray[np.float64]:
         return (true - trans) @ rot + amp * field(true)      # R^T (Y - t) + bias
 
-    # Scale the bias so that sigma_L0 of the fiducials (as the paper computed it: on the means
-    # for A and B, on the single measurements for RA) hits the wanted value.
-    fid_noise_mean = np.array([nz.mean(axis=0) for nz in fid_noise])
+    # Scale the bias so that sigma_L0 of the fiducials as the paper computed it (on the means
+    # for A and B, bias only; on the single measurements for RA, the first of a repeated hole:
+    # SyntheticCell.fiducial_processed) hits the wanted value.
     if spec.sigma_l0_on_means:
-        fid_noise_mean[:] = 0.0
-    noise_part = sigma_l(working(fid_true, 0.0) + fid_noise_mean, fid_true)
+        fid_noise_seen = np.zeros((len(fid_true), d))
+    else:
+        fid_noise_seen = np.array([nz[0] for nz in fid_noise])
+    noise_part = sigma_l(working(fid_true, 0.0) + fid_noise_seen, fid_true)
     want = math.sqrt(max(spec.sigma_l0 ** 2 - noise_part ** 2, 1e-30))
     amp = 1.0
     for _ in range(30):
-        got = sigma_l(working(fid_true, amp) + fid_noise_mean, fid_true)
+        got = sigma_l(working(fid_true, amp) + fid_noise_seen, fid_true)
         bias_part = math.sqrt(max(got ** 2 - noise_part ** 2, 1e-30))
         amp *= want / bias_part
         if abs(got / spec.sigma_l0 - 1) < 1e-4:

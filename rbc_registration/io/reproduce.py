@@ -55,12 +55,14 @@ def findings(results: dict[str, CellResult]) -> list[dict[str, Any]]:
         f = results["RA"].results["paper"].averaged.summary()["fraction_improved"]
         add("RA: fraction of targets improved (paper)", f, 0.75, f >= 0.75,
             "RA-like improved for at least 75% of targets (Fig. 5b)")
-    for cell in ("A", "RA"):
-        if cell in results:
-            pc = results[cell].results["paper"].averaged.summary()["tre_c_median"]
-            kc = results[cell].results["kriging"].averaged.summary()["tre_c_median"]
-            add(f"{cell}: median TRE_c kriging / paper", kc / pc, 1.0, kc <= pc,
-                "kriging no worse than the paper's interpolation")
+    # A only: on RA's single measurements kriging and the paper's interpolation are within about
+    # 10 % of each other either way, seed by seed (benchmarks/RESULTS.md, Reproduce), so no
+    # order is claimed there; the decision chooses per cell.
+    if "A" in results:
+        pc = results["A"].results["paper"].averaged.summary()["tre_c_median"]
+        kc = results["A"].results["kriging"].averaged.summary()["tre_c_median"]
+        add("A: median TRE_c kriging / paper", kc / pc, 1.0, kc <= pc,
+            "kriging no worse than the paper's interpolation")
     return out
 
 

@@ -17,7 +17,7 @@ def test_all_findings_hold(doc):
     found, _ = doc
     failed = [f for f in found["findings"] if not f["holds"]]
     assert not failed, failed
-    assert len(found["findings"]) == 12
+    assert len(found["findings"]) == 11
 
 
 def test_table1_orders_of_magnitude(doc):
