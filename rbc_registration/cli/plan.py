@@ -43,7 +43,8 @@ def add_parser(sub: Any) -> None:
                    help="repeats of FIDUCIALS.csv checked as by register (default: 0.25 x the "
                         "fiducial spacing; 0 = off); rows of one candidate or target id farther "
                         "apart than D (default: 0.25 x their spacing) refuse that file")
-    p.add_argument("--unit", default="mm", help="unit of the files, used as a label (default mm)")
+    p.add_argument("--unit", default="mm",
+                   help="unit of the files (default mm): named in the report")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the plan as JSON")
     p.add_argument("--figure", type=Path, metavar="OUT.png",
                    help="draw the candidates by expected gain and the expected error against "

@@ -34,7 +34,9 @@ def add_parser(sub: Any) -> None:
                           "outlier_distance); 0 = off (default: 0.25 x the fiducial spacing). "
                           "Rows of one target id farther apart than D (default: 0.25 x the "
                           "target spacing) refuse the targets file")
-    reg.add_argument("--unit", default="mm", help="unit of the file, used as a label (default mm)")
+    reg.add_argument("--unit", default="mm",
+                     help="unit of the file (default mm): named in the report; export converts "
+                     "to metres by it")
     reg.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
     reg.set_defaults(func=run)
 

@@ -33,7 +33,8 @@ KEYS = ("format", "format_version", "parent_frame", "child_frame", "dimension", 
 class Decision:
     """Whether and how targets are corrected with this calibration.
 
-    :ivar mode: the decision mode that chose it (e.g. ``auto``, ``on``, ``off``; ``cv``, ``rho``).
+    :ivar mode: the decision mode that chose it (``cv``, ``rho``, ``on``, ``off``; files of older
+        versions: ``auto``).
     :ivar method: what a target gets: ``uncorrected``, or a correction by ``paper`` or ``kriging``
         interpolation (eq. 5-6).
     :ivar apply: whether corrections are applied (true needs a correcting method).

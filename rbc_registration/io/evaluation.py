@@ -69,7 +69,7 @@ def evaluate_contents(contents: BagContents, settings: Settings,
 # -- report directory --------------------------------------------------------------------------
 #: Every file :func:`write_report_dir` may write into its directory.
 REPORT_FILES = ("report.json", "report.md", "mismatch_histograms.png", "fiducial_map.png",
-                "tre_per_target.png", "delta_tre.png")
+                "tre_per_target.png", "delta_tre.png", "cv_errors.png")
 
 
 def write_report_dir(ev: Evaluation, out: Path, title: str = "") -> list[Path]:

@@ -118,7 +118,7 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
         node = rclpy.create_node("rbc_bag_replay", context=context,
                                  start_parameter_services=False)
         # Reliable, volatile, keep-all: a slow subscriber delays the replay instead of losing
-        # messages (the node's inputs are reliable, depth 1000).
+        # messages (the node's inputs are reliable, keep-all).
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
         publishers = {t: node.create_publisher(c, t, qos) for t, c in classes.items()}

@@ -12,6 +12,7 @@ from rbc_registration.core.synthetic import make_cell
 from rbc_registration.io.bag.synthetic import cell_messages
 from rbc_registration.io.bag.writer import write_bag
 from rbc_registration.io.csv_io import write_fiducials, write_targets
+from rbc_registration.io.evaluation import REPORT_FILES
 
 
 @pytest.fixture(scope="module")
@@ -77,11 +78,13 @@ def test_an_output_onto_an_input_is_refused(tmp_path, capsys, monkeypatch, files
     assert after == before
 
 
-def test_an_output_directory_holding_an_input_is_refused(tmp_path, capsys, files):
-    """``evaluate --out DIR`` writes DIR/report.json etc.: one of them may be an input."""
+@pytest.mark.parametrize("name", REPORT_FILES)
+def test_an_output_directory_holding_an_input_is_refused(tmp_path, capsys, files, name):
+    """``evaluate --out DIR`` writes DIR/report.json etc.: any of them may be an input (a
+    review: cv_errors.png was not checked, and a targets file of that name was overwritten)."""
     out = tmp_path / "out"
     out.mkdir()
-    victim = out / "report.json"
+    victim = out / name
     cell = files["cell"]
     write_targets(victim, cell.target_ids, cell.target_means * 1e-3, cell.target_truth * 1e-3)
     content = victim.read_bytes()
@@ -89,9 +92,9 @@ def test_an_output_directory_holding_an_input_is_refused(tmp_path, capsys, files
     assert cli.main(["evaluate", str(files["bag"]), "--targets", str(victim), "--quiet",
                      "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and "report.json" in err
+    assert len(err.strip().splitlines()) == 1 and name in err
     assert victim.read_bytes() == content
-    assert [p.name for p in out.iterdir()] == ["report.json"]
+    assert [p.name for p in out.iterdir()] == [name]
 
 
 def test_other_outputs_still_work(tmp_path, capsys, files):

@@ -18,6 +18,7 @@ from rbc_registration.io.bag.records import DEFAULT_TOPICS, OutMessage
 from rbc_registration.io.bag.synthetic import cell_messages
 from rbc_registration.io.bag.writer import write_bag
 from rbc_registration.io.csv_io import write_fiducials, write_targets
+from rbc_registration.io.evaluation import REPORT_FILES
 
 M = M_PER_MM  # the synthetic cells are in mm; bags and these CSVs are in metres
 
@@ -164,6 +165,9 @@ def test_report_directory(tmp_path, capsys):
     names = {p.name for p in out.iterdir()}
     assert names == {"report.json", "report.md", "mismatch_histograms.png", "fiducial_map.png",
                      "tre_per_target.png", "delta_tre.png", "cv_errors.png"}
+    # Every file written is one evaluate checks against the inputs before writing (a review:
+    # cv_errors.png was not, and a hard link of that name to an input was overwritten).
+    assert names <= set(REPORT_FILES)
     md = (out / "report.md").read_text()
     assert "| sigma | sigma_axis | sigma_L0 | rho |" in md
     assert "![delta_tre.png](delta_tre.png)" in md
