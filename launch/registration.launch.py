@@ -2,20 +2,20 @@
 
 Arguments (``name:=value``; ``ros2 launch ... --show-args`` lists them): see ARGUMENTS below and
 docs/BUILD.md. Each node gets its own ``state_dir`` by default,
-``~/.ros/rbc_registration/<namespace tokens>.<node_name>``
+``$ROS_HOME/rbc_registration/<namespace tokens>.<node_name>`` (``ROS_HOME`` default ``~/.ros``)
 (:func:`rbc_registration.io.state_paths.default_state_dir`), so two cells never share a journal::
 
     ros2 launch rbc_registration registration.launch.py namespace:=cell_a
     ros2 launch rbc_registration registration.launch.py namespace:=cell_b dimension:=2
 
 Parameters: ``params_file`` first, then the arguments given here (an empty argument leaves the
-file's value). The functions above ``generate_launch_description`` are plain Python (tested
+file's value; ``state_dir`` is always set here: ``auto`` by default, ``''`` for no persistence). The functions above ``generate_launch_description`` are plain Python (tested
 without ROS by test/test_launch_file.py).
 """
 
 from typing import Mapping, Optional
 
-from rbc_registration.io.state_paths import default_state_dir, resolve_namespace
+from rbc_registration.io.state_paths import default_state_dir, resolve_namespace, state_root
 
 PACKAGE = "rbc_registration"
 EXECUTABLE = "registration_node"
@@ -32,9 +32,11 @@ ARGUMENTS = (
     ("destination_frame", "", "destination_frame parameter (robot base or world); empty: from "
                               "params_file (config default: world)"),
     ("dimension", "", "dimension parameter, 2 or 3; empty: from params_file (config default: 3)"),
-    ("state_dir", "auto", "Journal and snapshot directory. 'auto': "
-                        "~/.ros/rbc_registration/<namespace tokens>.<node_name>, one per node; "
-                        "'' (empty): no persistence; otherwise that directory"),
+    ("state_dir", "auto", "Journal and snapshot directory (set here, it overrides params_file's "
+                        "state_dir). 'auto': $ROS_HOME/rbc_registration/<namespace "
+                        "tokens>.<node_name> (ROS_HOME default ~/.ros), one per node, as the "
+                        "node derives it itself; '' (empty): no persistence; otherwise that "
+                        "directory"),
     ("params_file", "<share>/config/registration_node.yaml",
      "YAML parameter file of registration_node (default: the package's "
      "config/registration_node.yaml)"),
@@ -72,7 +74,8 @@ def node_parameters(values: Mapping[str, str],
                              "(or empty)")
         overrides["use_sim_time"] = _BOOLEANS[flag]
     state_dir = values["state_dir"]
-    overrides["state_dir"] = default_state_dir(namespace, name) if state_dir == AUTO else state_dir
+    overrides["state_dir"] = (default_state_dir(namespace, name, root=state_root())
+                              if state_dir == AUTO else state_dir)
     return namespace, overrides
 
 

@@ -71,6 +71,12 @@ def test_build_md_documents_every_argument_with_its_default():
 
 # --- the plain-Python part ---------------------------------------------------------------------
 
+@pytest.fixture(autouse=True)
+def _no_ros_home(monkeypatch):
+    """The derived paths below are those of a user without ROS_HOME (the suite sets one)."""
+    monkeypatch.delenv("ROS_HOME", raising=False)
+
+
 def _values(**changes):
     module = _load_launch_module()
     values = {name: default for name, default, _ in module.ARGUMENTS}
@@ -83,6 +89,18 @@ def test_defaults_set_only_the_derived_state_dir():
     module, values = _values()
     assert module.node_parameters(values) == (
         "/", {"state_dir": "~/.ros/rbc_registration/registration_node"})
+
+
+def test_auto_state_dir_follows_ros_home_as_the_node_does(monkeypatch):
+    """A review: the launch file put the state under ~/.ros even with ROS_HOME set, while the
+    node's own ``auto`` uses $ROS_HOME (rcl's rule)."""
+    module, values = _values(namespace="cell_a")
+    monkeypatch.setenv("ROS_HOME", "/data/ros")
+    assert module.node_parameters(values)[1]["state_dir"] == \
+        "/data/ros/rbc_registration/cell_a.registration_node"
+    monkeypatch.delenv("ROS_HOME")
+    assert module.node_parameters(values)[1]["state_dir"] == \
+        "~/.ros/rbc_registration/cell_a.registration_node"
 
 
 def test_two_cells_get_their_own_state_dirs():
