@@ -9,7 +9,8 @@ docs/BUILD.md. Each node gets its own ``state_dir`` by default,
     ros2 launch rbc_registration registration.launch.py namespace:=cell_b dimension:=2
 
 Parameters: ``params_file`` first, then the arguments given here (an empty argument leaves the
-file's value; ``state_dir`` is always set here: ``auto`` by default, ``''`` for no persistence). The functions above ``generate_launch_description`` are plain Python (tested
+file's value; ``state_dir`` is always set here: ``auto`` by default, ``''`` for no
+persistence). The functions above ``generate_launch_description`` are plain Python (tested
 without ROS by test/test_launch_file.py).
 """
 
