@@ -17,6 +17,9 @@ from .options import add_model_options, non_negative, refuse_outputs_onto_inputs
 
 #: Suggestions made when ``--count`` is not given (fewer when there are fewer candidates).
 DEFAULT_COUNT = 5
+#: The option of each PlanConfig field the command sets.
+_OPTIONS = {"min_gain_fraction": "--min-gain-fraction", "min_gain_length": "--min-gain",
+            "candidate_repeats": "--candidate-repeats", "target_repeats": "--target-repeats"}
 
 
 def add_parser(sub: Any) -> None:
@@ -43,6 +46,11 @@ def add_parser(sub: Any) -> None:
                    help="repeats of FIDUCIALS.csv checked as by register (default: 0.25 x the "
                         "fiducial spacing; 0 = off); rows of one candidate or target id farther "
                         "apart than D (default: 0.25 x their spacing) refuse that file")
+    p.add_argument("--candidate-repeats", type=int, metavar="N",
+                   help="measurements to be averaged into each new fiducial (default: the "
+                        "median repeat count of FIDUCIALS.csv's ids)")
+    p.add_argument("--target-repeats", type=int, metavar="N",
+                   help="measurements to be averaged into each target (default: the same)")
     p.add_argument("--unit", default="mm",
                    help="unit of the files (default mm): named in the report")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the plan as JSON")
@@ -62,14 +70,21 @@ def run(args: argparse.Namespace) -> int:
     from ..io.report import write_json
     from .register import model_config
 
+    if args.figure is not None and (args.figure.suffix.lower() != ".png"
+                                    or str(args.figure).endswith("/") or args.figure.is_dir()):
+        # matplotlib would add ".png" itself and write beside what was named
+        raise ValueError(f"--figure {terminal(args.figure)}: must name a .png file")
     refuse_outputs_onto_inputs([("--json", args.json), ("--figure", args.figure)],
                                [("fiducials", args.fiducials), ("--candidates", args.candidates),
                                 ("--targets", args.targets)])
     try:
         config = PlanConfig(min_gain_fraction=args.min_gain_fraction,
-                            min_gain_length=args.min_gain)
-    except ValueError as exc:
-        raise ValueError(f"--min-gain-fraction / --min-gain: {exc}") from None
+                            min_gain_length=args.min_gain,
+                            candidate_repeats=args.candidate_repeats,
+                            target_repeats=args.target_repeats)
+    except ValueError as exc:             # the message names the field: name its option
+        option = next((o for f, o in _OPTIONS.items() if str(exc).startswith(f)), "plan")
+        raise ValueError(f"{option}: {exc}") from None
     fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance)
     for note in fid.notes:
         warn("plan", note)

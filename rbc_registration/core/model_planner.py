@@ -31,7 +31,8 @@ from .evaluation import leave_one_out
 from .expected_error import ExpectedErrorModel, expected_squared_errors, pooled_median
 from .kriging import KrigingInterpolator
 from .model import RbcModel
-from .planner import DEFAULT_PLAN_CONFIG, MeasurementPlan, PlanConfig, plan, work_volume
+from .planner import (DEFAULT_PLAN_CONFIG, MeasurementPlan, PlanConfig, measurement_repeats,
+                      plan, work_volume)
 from .validation import as_points
 
 
@@ -157,8 +158,9 @@ def expected_target_error(model: RbcModel, targets: Optional[ArrayLike] = None, 
     (``error_model_from(model, served=True)``)."""
     em = error_model_from(model, served=True) if error_model is None else error_model
     pts = work_volume(model.working, config.work_volume_points) if targets is None else targets
+    n_target = measurement_repeats(config, model.counts)[1]
     return float(pooled_median(expected_squared_errors(model.working, pts, em, model.counts,
-                                                       config.target_repeats), em.dimension))
+                                                       n_target), em.dimension))
 
 
 def check_expected_error(model: RbcModel, error_model: Optional[ExpectedErrorModel] = None

@@ -57,15 +57,17 @@ class PlanConfig:
     :ivar min_gain_length: ... or less than this length (default 0: off).
     :ivar work_volume_points: size of the grid sampling the work volume when no targets are
         given (before clipping to the convex hull).
-    :ivar candidate_repeats: measurements that will be averaged into a new fiducial.
-    :ivar target_repeats: measurements that will be averaged into each target.
+    :ivar candidate_repeats: measurements that will be averaged into a new fiducial; None (the
+        default): as many as the current fiducials had (the median of their repeat counts,
+        :func:`measurement_repeats`).
+    :ivar target_repeats: measurements that will be averaged into each target; None: the same.
     """
 
     min_gain_fraction: float = 0.02
     min_gain_length: float = 0.0
     work_volume_points: int = 400
-    candidate_repeats: int = 1
-    target_repeats: int = 1
+    candidate_repeats: Optional[int] = None
+    target_repeats: Optional[int] = None
 
     def __post_init__(self) -> None:
         f = self.min_gain_fraction
@@ -74,8 +76,45 @@ class PlanConfig:
         g = self.min_gain_length
         if not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0:
             raise ValueError(f"min_gain_length must be a finite length >= 0, got {g!r}")
-        for name in ("work_volume_points", "candidate_repeats", "target_repeats"):
-            _check_count(getattr(self, name), name)
+        _check_count(self.work_volume_points, "work_volume_points")
+        for name in ("candidate_repeats", "target_repeats"):
+            if getattr(self, name) is not None:
+                _check_count(getattr(self, name), name)
+
+
+def measurement_repeats(config: "PlanConfig", repeats: Optional[ArrayLike]) -> tuple[int, int]:
+    """The measurements averaged into a new fiducial and into each target: the config's, or
+    where it says None, the median of the current fiducials' repeat counts ``repeats`` (1
+    without them): a cell measured 200 times a point is planned for 200 more, not 1."""
+    typical = 1 if repeats is None or np.size(repeats) == 0 else \
+        max(1, int(round(float(np.median(np.asarray(repeats, dtype=float))))))
+    return (typical if config.candidate_repeats is None else config.candidate_repeats,
+            typical if config.target_repeats is None else config.target_repeats)
+
+
+#: Most candidates x points (targets or work-volume points) in one plan: the greedy steps hold
+#: about a dozen (C, K) arrays of floats (5,000 x 5,000 peaked at 2.5 GB), so this bounds a plan
+#: to ~0.5 GB.
+MAX_CANDIDATE_POINTS = 5_000_000
+#: A candidate or target farther than this many times the fiducials' size (their bounding box's
+#: largest side) from that box is refused: a typo or another unit (it would also stretch the
+#: work volume of a plan without targets over empty space).
+FAR_FACTOR = 10.0
+
+
+def check_near(points: NDArray[np.float64], fiducials: NDArray[np.float64], name: str) -> None:
+    """:raises ValueError: naming the first of ``points`` farther than :data:`FAR_FACTOR` x the
+        fiducials' size from their bounding box."""
+    lo, hi = fiducials.min(axis=0), fiducials.max(axis=0)
+    size = float((hi - lo).max())
+    gap = np.linalg.norm(np.maximum(lo - points, 0) + np.maximum(points - hi, 0), axis=1)
+    far = np.flatnonzero(gap > FAR_FACTOR * size)
+    if far.size:
+        k = int(far[0])
+        raise ValueError(f"{name} {k} ({', '.join(f'{v:.6g}' for v in points[k])}) is "
+                         f"{gap[k]:.4g} from the fiducials' bounding box, more than "
+                         f"{FAR_FACTOR:g} x its size ({size:.4g}): a typo, or another unit? "
+                         f"({far.size} such {name}(s))")
 
 
 class MeasurementPlan(NamedTuple):
@@ -101,6 +140,8 @@ class MeasurementPlan(NamedTuple):
     :ivar expected_point_errors: (K,) expected RMS TRE at each point now.
     :ivar expected_with_all: expected median TRE if every candidate were measured (what
         measuring can still buy); None when J + C > :data:`ALL_CANDIDATES_MAX`.
+    :ivar candidate_repeats: measurements the plan assumed averaged into each new fiducial.
+    :ivar target_repeats: ... and into each target (:func:`measurement_repeats`).
     """
 
     sequence: tuple[int, ...]
@@ -116,6 +157,8 @@ class MeasurementPlan(NamedTuple):
     on_targets: bool
     expected_point_errors: NDArray[np.float64]
     expected_with_all: Optional[float]
+    candidate_repeats: int = 1
+    target_repeats: int = 1
 
     @property
     def error_curve(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
@@ -130,7 +173,8 @@ def _check_count(v: object, name: str) -> int:
     return int(v)
 
 
-#: The defaults (2 %, no length threshold, 400 work-volume points, single measurements).
+#: The defaults (2 %, no length threshold, 400 work-volume points, points measured as often as
+#: the fiducials were).
 DEFAULT_PLAN_CONFIG = PlanConfig()
 
 
@@ -246,17 +290,26 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     if first is not None and not (isinstance(first, (int, np.integer))
                                   and 0 <= int(first) < len(c)):
         raise ValueError(f"first must be a candidate index in [0, {len(c)}), got {first!r}")
+    check_near(c, x, "candidate")
     inv_n = inverse_repeats(repeats, len(x))
+    n_cand, n_target = measurement_repeats(config, repeats)
     on_targets = targets is not None
     pts = as_points(targets, "targets", d, 1) if on_targets else \
         work_volume(np.vstack([x, c]), config.work_volume_points)
+    if on_targets:
+        check_near(pts, x, "target")
+    if len(c) * len(pts) > MAX_CANDIDATE_POINTS:
+        what = "targets" if on_targets else "work-volume points"
+        raise ValueError(f"{len(c)} candidates x {len(pts)} {what} = {len(c) * len(pts):,} is "
+                         f"more than one plan holds ({MAX_CANDIDATE_POINTS:,}): give fewer "
+                         f"candidates or targets")
 
-    inv_nc = 1.0 / config.candidate_repeats
+    inv_nc = 1.0 / n_cand
     rigid = RigidFitError(x, fiducial_covariance(error_model, inv_n), c,
                           fiducial_covariance(error_model, np.array([inv_nc]))[0], pts)
     bias = BiasPosterior(x, inv_n, c, inv_nc, pts, error_model) if error_model.corrected \
         else None
-    const = target_noise(error_model, config.target_repeats) + \
+    const = target_noise(error_model, n_target) + \
         (0.0 if error_model.corrected else d * error_model.signal_std ** 2)
     cal2 = error_model.calibration ** 2
 
@@ -268,9 +321,9 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     now = float(pooled_median(now_sq, d))
     with_all = None
     if len(x) + len(c) <= ALL_CANDIDATES_MAX:
-        n_all = np.concatenate([1.0 / inv_n, np.full(len(c), float(config.candidate_repeats))])
+        n_all = np.concatenate([1.0 / inv_n, np.full(len(c), float(n_cand))])
         with_all = float(pooled_median(expected_squared_errors(
-            np.vstack([x, c]), pts, error_model, n_all, config.target_repeats), d))
+            np.vstack([x, c]), pts, error_model, n_all, n_target), d))
     medians = pooled_median(after(np.arange(len(c))), d, np.full(len(c), now))
     gains = now - medians
     chosen = np.zeros(len(c), dtype=bool)
@@ -307,4 +360,4 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     return MeasurementPlan(tuple(sequence), now, tuple(expected), _frozen(gains),
                            _frozen(np.argsort(-gains, kind="stable")), enough, reason,
                            enough_after, len(x), _frozen(pts), on_targets,
-                           _frozen(np.sqrt(now_sq)), with_all)
+                           _frozen(np.sqrt(now_sq)), with_all, n_cand, n_target)

@@ -43,6 +43,8 @@ def plan_report(plan: MeasurementPlan, candidate_ids: Sequence[str], error_model
                         "length_scale": _num(error_model.length_scale),
                         "noise_axis_std": [_num(v ** 0.5) for v in
                                            error_model.noise_covariance.diagonal()]},
+        "candidate_repeats": plan.candidate_repeats,
+        "target_repeats": plan.target_repeats,
         "min_gain_fraction": config.min_gain_fraction,
         "min_gain_length": config.min_gain_length,
         "expected_now": _num(plan.expected_now),
@@ -75,6 +77,9 @@ def format_plan(report: dict[str, Any]) -> str:
         f"Plan from {report['n_fiducials']} fiducials, {report['dim']}D, "
         f"{report['n_candidates']} candidates; median target error over {where}, {reg} "
         f"registration; lengths in {u}",
+        f"  each new fiducial measured {report['candidate_repeats']} time(s) and each target "
+        f"{report['target_repeats']} (as the fiducials so far; --candidate-repeats, "
+        f"--target-repeats)",
         f"  expected median target error now  {_len(report['expected_now'], u)}",
         "  suggestions (#: the candidate's position in CANDIDATES.csv, from 0):",
         f"  {'rank':>4}  {'candidate':<12} {'#':>5} {'expected after':>16} {'gain':>12} "

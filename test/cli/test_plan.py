@@ -141,7 +141,12 @@ def test_the_top_suggestion_fills_the_empty_region(tmp_path):
     (["{fid}", "--candidates", "{nowz}", "--count", "3"],
      "count (3) exceeds the number of candidates (2)"),
     (["{fid}", "--candidates", "{cand}", "--min-gain-fraction", "1.5"],
-     "--min-gain-fraction / --min-gain: min_gain_fraction must be in [0, 1), got 1.5"),
+     "--min-gain-fraction: min_gain_fraction must be in [0, 1), got 1.5"),
+    (["{fid}", "--candidates", "{cand}", "--candidate-repeats", "0"],
+     "--candidate-repeats: candidate_repeats must be a positive integer, got 0"),
+    (["{fid}", "--candidates", "{far}"], "candidate 1 (1e+06, 0) is "),
+    (["{fid}", "--candidates", "{cand}", "--figure", "plan"], "--figure plan: must name a .png"),
+    (["{fid}", "--candidates", "{cand}", "--figure", "out/"], "must name a .png file"),
     (["{fid}", "--candidates", "{cand}", "--min-gain", "-1"],
      "min_gain_length must be a finite length >= 0, got -1.0"),
     (["{fid}", "--candidates", "{cand}", "--min-gain", "nan"], "min_gain_length must be"),
@@ -155,6 +160,7 @@ def test_bad_input_is_one_clear_line(tmp_path, ra, args, message):
     (tmp_path / "bad.csv").write_text("id,wx,wy\na,1,2\nb,1,x\n")
     (tmp_path / "nowz.csv").write_text("id,wx,wy\na,1,2\nb,3,4\n")
     (tmp_path / "empty.csv").write_text("id,wx,wy\n")
+    (tmp_path / "far.csv").write_text("id,wx,wy\na,100,100\nb,1000000,0\n")     # a typo'd hole
     (tmp_path / "dupid.csv").write_text("id,wx,wy\na,0,0\nb,100,0\na,60,0\n")
     (tmp_path / "few.csv").write_text("id,wx,wy,dx,dy\na,0,0,0,0\nb,1,0,1,0\n")
     (tmp_path / "fid3.csv").write_text("id,wx,wy,wz,dx,dy,dz\n" + "".join(
@@ -162,6 +168,7 @@ def test_bad_input_is_one_clear_line(tmp_path, ra, args, message):
             [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)])))
     files = {"bad": tmp_path / "bad.csv", "nowz": tmp_path / "nowz.csv",
              "empty": tmp_path / "empty.csv", "dupid": tmp_path / "dupid.csv",
+             "far": tmp_path / "far.csv",
              "few": tmp_path / "few.csv",
              "fid3": tmp_path / "fid3.csv", "fid": ra[0] / "fiducials.csv",
              "cand": ra[0] / "candidates.csv"}

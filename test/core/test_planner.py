@@ -17,7 +17,8 @@ from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpo
 from rbc_registration.core.model_planner import (check_expected_error, decisive_candidate,
                                                  error_model_from, expected_target_error,
                                                  plan_from_model)
-from rbc_registration.core.planner import PlanConfig, plan, unresolved_bias, work_volume
+from rbc_registration.core.planner import (PlanConfig, measurement_repeats, plan, unresolved_bias,
+                                           work_volume)
 from rbc_registration.core.registration import rigid_fit
 from rbc_registration.core.rigid_tre import rigid_tre_covariance
 from rbc_registration.core.synthetic import make_cell
@@ -122,7 +123,8 @@ def test_greedy_updates_agree_with_planning_again_from_scratch(d, corrected):
     em = ExpectedErrorModel.from_axis_std(0.8, 1.5, np.array([0.05, 0.02, 0.03])[:d], corrected)
     # repeats and candidate repeats enter as noise / n
     reps = rng.integers(1, 4, len(x))
-    p = plan(x, c, em, t, count=6, repeats=reps, config=PlanConfig(candidate_repeats=2))
+    cfg = PlanConfig(candidate_repeats=2, target_repeats=1)
+    p = plan(x, c, em, t, count=6, repeats=reps, config=cfg)
     for i in range(6):
         more = np.vstack([x, c[list(p.sequence[:i + 1])]])
         n = np.concatenate([reps, np.full(i + 1, 2)])
@@ -131,9 +133,61 @@ def test_greedy_updates_agree_with_planning_again_from_scratch(d, corrected):
         if i + 1 < 6:
             assert p.expected_after[i + 1] < p.expected_after[i]
     # measuring every candidate, in whatever order, ends where expected_with_all says
-    every = plan(x, c, em, t, count=len(c), repeats=reps, config=PlanConfig(candidate_repeats=2))
+    every = plan(x, c, em, t, count=len(c), repeats=reps, config=cfg)
     assert every.expected_after[-1] == pytest.approx(p.expected_with_all, rel=1e-9)
     assert "measuring all 25 candidates is expected to bring it to" in p.reason
+
+
+def test_points_are_planned_as_often_measured_as_the_fiducials_were():
+    """A review: fiducials averaged over 200 measurements were planned as if each new fiducial
+    and each target were measured once; the target's own noise then dominated the expected error
+    (4x the truth on a B-like cell) and every suggestion had a negative gain."""
+    rng = np.random.default_rng(3)
+    x, c, t = rng.uniform(0, 4, (12, 3)), rng.uniform(0, 4, (30, 3)), rng.uniform(0, 4, (8, 3))
+    em = ExpectedErrorModel.from_axis_std(0.05, 3.0, [0.1, 0.1, 0.1])
+    reps = np.full(len(x), 200)
+    assert measurement_repeats(PlanConfig(), reps) == (200, 200)
+    assert measurement_repeats(PlanConfig(), [1, 3, 5]) == (3, 3)
+    assert measurement_repeats(PlanConfig(), None) == (1, 1)
+    assert measurement_repeats(PlanConfig(candidate_repeats=4), reps) == (4, 200)
+    p = plan(x, c, em, t, count=3, repeats=reps)
+    assert (p.candidate_repeats, p.target_repeats) == (200, 200)
+    explicit = plan(x, c, em, t, count=3, repeats=reps,
+                    config=PlanConfig(candidate_repeats=200, target_repeats=200))
+    assert p.expected_after == explicit.expected_after and p.expected_now == explicit.expected_now
+    once = plan(x, c, em, t, count=3, repeats=reps,
+                config=PlanConfig(candidate_repeats=1, target_repeats=1))
+    assert min(once.gains) < 0 < min(p.gains)         # a single noisy point would hurt here
+    assert p.expected_now < 0.5 * once.expected_now
+
+
+@pytest.mark.parametrize("where", ["candidates", "targets"])
+def test_a_point_far_outside_the_fiducials_is_refused(where):
+    """One typo'd candidate 1e6 away became the first suggestion and stretched the work volume
+    (the expected error "now" went from 0.1 to 29)."""
+    rng = np.random.default_rng(4)
+    x, c, t = rng.uniform(0, 500, (10, 2)), rng.uniform(0, 500, (9, 2)), rng.uniform(0, 500, (5, 2))
+    em = ExpectedErrorModel.from_axis_std(0.1, 300.0, [0.05, 0.05])
+    plan(x, np.vstack([c, [[4000.0, 250.0]]]), em, t)     # 7 sizes out: a cell extended, kept
+    far = np.vstack([c if where == "candidates" else t, [[1e6, 0.0]]])
+    args = (far, t) if where == "candidates" else (c, far)
+    with pytest.raises(ValueError, match=rf"{where[:-1]} {len(far) - 1} \(1e\+06, 0\) is "
+                                         r"[\d.e+]+ from the fiducials' bounding box, more than "
+                                         r"10 x its size .*another unit"):
+        plan(x, args[0], em, args[1])
+
+
+def test_a_plan_too_large_for_memory_is_refused(monkeypatch):
+    """12,000 candidates x 12,000 targets needed ~14 GB and ended in a MemoryError traceback."""
+    import rbc_registration.core.planner as planner
+    monkeypatch.setattr(planner, "MAX_CANDIDATE_POINTS", 50)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 1, (8, 2))
+    em = ExpectedErrorModel.from_axis_std(0.1, 0.5, [0.01, 0.01])
+    plan(x, rng.uniform(0, 1, (10, 2)), em, rng.uniform(0, 1, (5, 2)))         # 50: planned
+    with pytest.raises(ValueError, match=r"^11 candidates x 5 targets = 55 is more than one plan "
+                                         r"holds \(50\): give fewer"):
+        plan(x, rng.uniform(0, 1, (11, 2)), em, rng.uniform(0, 1, (5, 2)))
 
 
 def test_gain_decreases_as_fiducials_are_added():
