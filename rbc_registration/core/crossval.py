@@ -39,7 +39,7 @@ from .interpolation import PaperInterpolator
 from .kriging import KrigingInterpolator
 from .registration import Registration, rigid_fit
 from .restoration import restore_rigid_body
-from .validation import as_point_pairs
+from .validation import RESOLUTION, as_point_pairs, rounding
 
 T = TypeVar("T")
 
@@ -48,17 +48,6 @@ T = TypeVar("T")
 LOO_MAX_FIDUCIALS = 300
 #: Number of folds above :data:`LOO_MAX_FIDUCIALS`.
 K_FOLDS = 10
-#: The rounding of a held-out error relative to the largest coordinate: ~450 x float64's
-#: epsilon, for the registrations, restorations and interpolations each computing it. Two
-#: methods' errors closer than this times the largest coordinate are equal (exact rigid data:
-#: 1e-13 mm differences of pure rounding decided "kriging, p = 0.0036"); it is far below any
-#: real difference, also in a frame 5,000 km from its origin (0.5 um).
-RESOLUTION = 1e-13
-
-
-def rounding(*points: ArrayLike) -> float:
-    """:data:`RESOLUTION` x the largest coordinate of ``points`` (arrays of points)."""
-    return RESOLUTION * max(float(np.abs(np.asarray(p, dtype=np.float64)).max()) for p in points)
 
 
 class FoldScheme(NamedTuple):

@@ -145,6 +145,10 @@ def _solve_cg(working: NDArray[np.float64], destination: NDArray[np.float64],
     eps, info = compat.cg(op, rhs, rtol=rtol, atol=0.0, maxiter=20 * j * d, M=pre_proj)
     if info > 0:
         raise np.linalg.LinAlgError(f"restoration CG did not converge in {info} iterations")
+    if not np.isfinite(eps).all():
+        # A breakdown (p^T N p = 0, e.g. collinear 2D fiducials: N has null vectors beyond the
+        # rigid motions) gave NaN or inf, and CG reported success.
+        raise np.linalg.LinAlgError("restoration CG broke down (NaN in the step)")
     return project(eps).reshape(j, d)
 
 

@@ -38,10 +38,9 @@ from numpy.typing import ArrayLike, NDArray
 from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
                              pooled_median, target_noise)
-from .crossval import rounding
 from .interpolation import HullTest
 from .repeats import typical_spacing
-from .validation import as_points, check_spread
+from .validation import as_points, check_spread, rounding
 
 #: ``expected_with_all`` conditions on J + C points at once (one Cholesky factorisation,
 #: O((J + C)^3)); beyond this many it is not computed.

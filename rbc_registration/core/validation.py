@@ -87,3 +87,16 @@ def check_subset(subset: Optional[object], count: int, name: str) -> NDArray[np.
     if len(np.unique(idx)) != len(idx):
         raise ValueError(f"{name} repeats an index: {subset!r}")
     return idx.astype(np.intp)
+
+
+#: The rounding of a result relative to the largest coordinate: ~450 x float64's epsilon, for the
+#: registrations, restorations and interpolations each computing it. Two methods' held-out errors
+#: closer than this times the largest coordinate are equal (exact rigid data: 1e-13 mm
+#: differences of pure rounding decided "kriging, p = 0.0036"); it is far below any real
+#: difference, also in a frame 5,000 km from its origin (0.5 um).
+RESOLUTION = 1e-13
+
+
+def rounding(*points: ArrayLike) -> float:
+    """:data:`RESOLUTION` x the largest coordinate of ``points`` (arrays of points)."""
+    return RESOLUTION * max(float(np.abs(np.asarray(p, dtype=np.float64)).max()) for p in points)

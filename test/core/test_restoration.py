@@ -139,3 +139,23 @@ def test_sigma_l_is_computed_on_first_access_only():
     assert res.sigma_l == tuple(sigma_l(p, y) for p in stages)
     assert res.sigma_l_cached == res.sigma_l
     assert np.isnan(restore_rigid_body(x, y, compute_sigma_l=False).sigma_l).all()
+
+
+# Six 2D fiducials on a line (0.05 mm noise, mm), from a review: the second minimum-norm step
+# moved a fiducial 173 mm (sigma_L 0.037 -> 45 mm, corrected FRE 92 mm) and was served.
+COLLINEAR_WORKING = np.array([[0.0, 1.0], [80.0, 161.0], [160.0, 321.0], [240.0, 481.0],
+                              [320.0, 641.0], [400.0, 801.0]])
+COLLINEAR_DESTINATION = np.array([
+    [99.74479794617777, 200.93855608745923], [128.84545241026063, 377.4755020368713],
+    [157.97633730830688, 553.9737180141478], [187.19321845989086, 730.4016385676397],
+    [216.19070484773292, 906.9968384089067], [245.42379811002615, 1083.4680439453018]])
+
+
+def test_a_diverging_iterative_step_is_refused_not_served():
+    with pytest.raises(ValueError, match=r"^the iterative restoration diverged: step 2 moved a "
+                                         r"fiducial 1\d\d, more than 100 x the rigid fit's "
+                                         r"largest residual \(0\.07\d+\): the fiducials are "
+                                         r"\(nearly\) collinear .*closed-form"):
+        restore_rigid_body(COLLINEAR_WORKING, COLLINEAR_DESTINATION)
+    closed = restore_rigid_body(COLLINEAR_WORKING, COLLINEAR_DESTINATION, method="closed-form")
+    assert closed.sigma_l[-1] < closed.sigma_l[0]
