@@ -39,7 +39,7 @@ from .interpolation import PaperInterpolator
 from .kriging import KrigingInterpolator
 from .registration import Registration, rigid_fit
 from .restoration import restore_rigid_body
-from .validation import RESOLUTION, as_point_pairs, rounding
+from .validation import as_point_pairs, rounding
 
 T = TypeVar("T")
 
@@ -94,7 +94,7 @@ class CrossValidation(NamedTuple):
     :ivar scale: (J,) kriging's predictive standard deviation per axis of each held-out fiducial
         (:meth:`KrigingInterpolator.held_out`), when a kriging model was given; else None.
     :ivar unavailable: candidates that could not be cross-validated, with the reason.
-    :ivar resolution: :data:`RESOLUTION` x the largest coordinate: differences of held-out
+    :ivar resolution: :data:`.validation.RESOLUTION` x the largest coordinate: differences of held-out
         errors below it are rounding, not accuracy (0: unknown).
     """
 
