@@ -94,8 +94,8 @@ class CrossValidation(NamedTuple):
     :ivar scale: (J,) kriging's predictive standard deviation per axis of each held-out fiducial
         (:meth:`KrigingInterpolator.held_out`), when a kriging model was given; else None.
     :ivar unavailable: candidates that could not be cross-validated, with the reason.
-    :ivar resolution: :data:`.validation.RESOLUTION` x the largest coordinate: differences of held-out
-        errors below it are rounding, not accuracy (0: unknown).
+    :ivar resolution: :data:`.validation.RESOLUTION` x the largest coordinate: differences of
+        held-out errors below it are rounding, not accuracy (0: unknown).
     """
 
     scheme: FoldScheme
