@@ -148,3 +148,15 @@ def test_matern52_in_blocks_is_the_closed_form(monkeypatch):
         got = gp_fit.matern52(r.copy(), 0.8)
         assert got.shape == r.shape
         np.testing.assert_allclose(got, expected, rtol=1e-14, atol=0.0)
+
+
+def test_exact_rigid_data_on_few_fiducials_fits_without_numpy_warnings():
+    """4 fiducials of exact rigid data (corrections 0): the fit's K^-1 of a near-singular factor
+    was NaN and numpy warned on stderr ("invalid value encountered in matmul") in `register`."""
+    import warnings
+    from rbc_registration.core.model import ModelConfig, build_model
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = build_model(x, x.copy(), ModelConfig(dimension=3))
+    assert model.decision.method == "uncorrected"
