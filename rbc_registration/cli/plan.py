@@ -98,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     em = error_model_from(model)
     plan = plan_from_model(model, cand.working, tgt.working if tgt else None, count=count,
                            config=config, error_model=em)
+    _warn_unit_mismatch(model.working, cand.working, tgt.working if tgt else None)
     report = plan_report(plan, cand.ids, em, config, args.unit)
     print(format_plan(report))
     if args.json:
@@ -111,3 +112,17 @@ def run(args: argparse.Namespace) -> int:
                     plan.expected_with_all)
         print(f"wrote {terminal(args.figure)}")
     return 0
+
+
+def _warn_unit_mismatch(fiducials: Any, candidates: Any, targets: Any) -> None:
+    """One warning line for candidates, and one for targets, that lie all outside the fiducials'
+    hull at a scale ~100x off theirs (:func:`rbc_registration.core.scale.unit_mismatch`)."""
+    from ..core.interpolation import HullTest
+    from ..core.scale import unit_mismatch
+
+    hull = HullTest(fiducials)
+    for what, points in (("candidates", candidates), ("targets", targets)):
+        text = None if points is None else unit_mismatch(
+            fiducials, points, hull.simplices(points) >= 0, what, what)
+        if text:
+            warn("plan", text)

@@ -29,13 +29,14 @@ def _rms_radius(points: np.ndarray, centre: np.ndarray) -> float:
 
 
 def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: ArrayLike,
-                  what: str = "targets") -> Optional[str]:
+                  what: str = "targets", noun: str = "targets") -> Optional[str]:
     """The warning for targets that look like they are in another unit than the fiducials.
 
     :param fiducials: fiducial locations (J, d), working frame.
     :param targets: target locations (K, d), working frame.
     :param inside_hull: (K,) the interpolation's inside-hull flags.
     :param what: what the points are, for the message (e.g. ``target truth``).
+    :param noun: what one calls them when counting (``targets``, ``candidates``).
     :return: one line naming the likely mismatch and the factor, or ``None``.
     """
     f = np.asarray(fiducials, dtype=float)
@@ -54,7 +55,7 @@ def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: ArrayLi
         ratio, how = 1 / spread, "smaller in spread than the fiducials"
     else:
         return None
-    return (f"all {len(t)} targets are outside the fiducials' hull and ~{ratio:.3g}x {how}: "
+    return (f"all {len(t)} {noun} are outside the fiducials' hull and ~{ratio:.3g}x {how}: "
             f"likely a unit mismatch between {what} and fiducials (e.g. m vs mm)")
 
 

@@ -131,6 +131,19 @@ def test_the_top_suggestion_fills_the_empty_region(tmp_path):
     assert g[best, 0] >= 250
 
 
+def test_candidates_in_another_unit_get_a_warning(tmp_path, ra):
+    """Holes in metres against fiducials in mm planned without a word (a review)."""
+    d, cell, _, ids, holes = ra
+    write_targets(tmp_path / "m.csv", ids, holes * 1e-3)
+    proc = run(d / "fiducials.csv", "--candidates", tmp_path / "m.csv", "--count", "1")
+    warning = [line for line in proc.stderr.splitlines() if "warning" in line]
+    assert len(warning) == 1 and warning[0].startswith("rbc-registration plan: warning: all "
+                                                       f"{len(ids)} candidates are outside")
+    assert "likely a unit mismatch between candidates and fiducials" in warning[0]
+    proc = run(d / "fiducials.csv", "--candidates", d / "candidates.csv", "--count", "1")
+    assert "warning" not in proc.stderr
+
+
 @pytest.mark.parametrize("args, message", [
     (["{fid}", "--candidates", "missing.csv"], "missing.csv: no such file"),
     (["{fid}", "--candidates", "{bad}"], "row 3: column wy is not a number"),
