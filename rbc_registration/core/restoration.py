@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .constants import RESTORATIONS as METHODS
-from .gauss_newton import gauss_newton_step
+from .gauss_newton import DIRECT_MAX_FIDUCIALS, gauss_newton_step
 from .mismatch import sigma_l_stages
 from .registration import rigid_fit
 from .validation import as_point_pairs, check_spread, rounding
@@ -146,24 +146,47 @@ def restore_rigid_body(working: ArrayLike, destination: ArrayLike, method: str =
         step_eps = [eps]
     else:
         # A step moves a fiducial about as far as the rigid fit's residuals (at most 1.4 x the
-        # largest over 430 cells: A/B/RA, random, thin); on a nearly degenerate geometry (2D
-        # fiducials all but collinear) the minimum-norm step blew up instead: 172 mm against
-        # 0.05 mm residuals, sigma_L 0.04 -> 45 mm.
+        # largest over 430 cells: A/B/RA, random, thin). On collinear 2D fiducials CG's first
+        # step reported success with components off the minimum-norm one, and the second then
+        # moved a fiducial 172 mm against 0.05 mm residuals (sigma_L 0.04 -> 45 mm): then the
+        # steps are taken again with the direct solver (the exact minimum-norm steps), and
+        # refused only if those diverge too.
         limit = DIVERGED_FACTOR * max(float(np.abs(x - rigid_fit(x, y).inverse_apply(y)).max()),
                                       rounding(x, y))
-        current = x
-        eps = np.zeros_like(x)
-        step_eps = []
-        for k in range(int(steps)):
-            step = gauss_newton_step(current, y, solver)
-            moved = float(np.abs(step).max())
-            if not moved <= limit:
-                raise ValueError(f"the iterative restoration diverged: step {k + 1} moved a "
-                                 f"fiducial {moved:.3g}, more than {DIVERGED_FACTOR:g} x the "
-                                 f"rigid fit's largest residual ({limit / DIVERGED_FACTOR:.3g}): "
-                                 f"the fiducials are (nearly) collinear or coplanar; use the "
-                                 f"closed-form restoration or spread the fiducials")
-            step_eps.append(step)
-            eps = eps + step
-            current = x - eps
+        try:
+            eps, step_eps = _iterate(x, y, int(steps), solver, limit)
+        except _Diverged:
+            if solver != "auto" or len(x) > DIRECT_MAX_FIDUCIALS:
+                raise ValueError(_diverged_text(limit)) from None
+            try:
+                eps, step_eps = _iterate(x, y, int(steps), "direct", limit)
+            except _Diverged:
+                raise ValueError(_diverged_text(limit)) from None
     return RestorationResult(eps, tuple(step_eps), method, x, y, compute_sigma_l)
+
+
+class _Diverged(Exception):
+    """An iterative step moved a fiducial farther than the limit."""
+
+
+def _iterate(x: NDArray[np.float64], y: NDArray[np.float64], steps: int, solver: str,
+             limit: float) -> tuple[NDArray[np.float64], list[NDArray[np.float64]]]:
+    """The corrections and the steps of ``steps`` Gauss-Newton steps. :raises _Diverged:"""
+    current = x
+    eps = np.zeros_like(x)
+    step_eps = []
+    for _ in range(steps):
+        step = gauss_newton_step(current, y, solver)
+        if not float(np.abs(step).max()) <= limit:
+            raise _Diverged()
+        step_eps.append(step)
+        eps = eps + step
+        current = x - eps
+    return eps, step_eps
+
+
+def _diverged_text(limit: float) -> str:
+    return (f"the iterative restoration diverged: a step moved a fiducial more than "
+            f"{DIVERGED_FACTOR:g} x the rigid fit's largest residual "
+            f"({limit / DIVERGED_FACTOR:.3g}) with every solver: the fiducial geometry is "
+            f"degenerate; use the closed-form restoration or spread the fiducials")
