@@ -95,25 +95,31 @@ def measurement_repeats(config: "PlanConfig", repeats: Optional[ArrayLike]) -> t
 #: about a dozen (C, K) arrays of floats (5,000 x 5,000 peaked at 2.5 GB), so this bounds a plan
 #: to ~0.5 GB.
 MAX_CANDIDATE_POINTS = 5_000_000
-#: A candidate or target farther than this many times the fiducials' size (their bounding box's
-#: largest side) from that box is refused: a typo or another unit (it would also stretch the
-#: work volume of a plan without targets over empty space).
+#: A candidate or target farther than this many times the typical distance of the points from
+#: their centre is refused: a typo or another unit (it would also stretch the work volume of a
+#: plan without targets over empty space). Centre and distance are the median of the fiducials
+#: with the candidates (and targets), so a cell started from a few neighbouring fiducials can
+#: still be planned over its whole plate, and up to half the points may be wrong.
 FAR_FACTOR = 10.0
 
 
-def check_near(points: NDArray[np.float64], fiducials: NDArray[np.float64], name: str) -> None:
-    """:raises ValueError: naming the first of ``points`` farther than :data:`FAR_FACTOR` x the
-        fiducials' size from their bounding box."""
-    lo, hi = fiducials.min(axis=0), fiducials.max(axis=0)
-    size = float((hi - lo).max())
-    gap = np.linalg.norm(np.maximum(lo - points, 0) + np.maximum(points - hi, 0), axis=1)
-    far = np.flatnonzero(gap > FAR_FACTOR * size)
+def check_near(points: NDArray[np.float64], fiducials: NDArray[np.float64], name: str,
+               others: Optional[NDArray[np.float64]] = None) -> None:
+    """:raises ValueError: naming the first of ``points`` farther from the median of all points
+        (``fiducials``, ``points`` and ``others``) than :data:`FAR_FACTOR` x their median
+        distance from it (at least the fiducials' size, the largest side of their box)."""
+    every = np.vstack([fiducials, points] + ([others] if others is not None else []))
+    centre = np.median(every, axis=0)
+    size = float((fiducials.max(axis=0) - fiducials.min(axis=0)).max())
+    reach = max(float(np.median(np.linalg.norm(every - centre, axis=1))), size)
+    gap = np.linalg.norm(points - centre, axis=1)
+    far = np.flatnonzero(gap > FAR_FACTOR * reach)
     if far.size:
         k = int(far[0])
         raise ValueError(f"{name} {k} ({', '.join(f'{v:.6g}' for v in points[k])}) is "
-                         f"{gap[k]:.4g} from the fiducials' bounding box, more than "
-                         f"{FAR_FACTOR:g} x its size ({size:.4g}): a typo, or another unit? "
-                         f"({far.size} such {name}(s))")
+                         f"{gap[k]:.4g} from the centre of the points, more than {FAR_FACTOR:g} x "
+                         f"their typical distance from it ({reach:.4g}): a typo, or another "
+                         f"unit? ({far.size} such {name}(s))")
 
 
 class MeasurementPlan(NamedTuple):
@@ -289,14 +295,14 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     if first is not None and not (isinstance(first, (int, np.integer))
                                   and 0 <= int(first) < len(c)):
         raise ValueError(f"first must be a candidate index in [0, {len(c)}), got {first!r}")
-    check_near(c, x, "candidate")
+    on_targets = targets is not None
+    t = as_points(targets, "targets", d, 1) if on_targets else None
+    check_near(c, x, "candidate", t)
     inv_n = inverse_repeats(repeats, len(x))
     n_cand, n_target = measurement_repeats(config, repeats)
-    on_targets = targets is not None
-    pts = as_points(targets, "targets", d, 1) if on_targets else \
-        work_volume(np.vstack([x, c]), config.work_volume_points)
+    pts = t if on_targets else work_volume(np.vstack([x, c]), config.work_volume_points)
     if on_targets:
-        check_near(pts, x, "target")
+        check_near(pts, x, "target", c)
     if len(c) * len(pts) > MAX_CANDIDATE_POINTS:
         what = "targets" if on_targets else "work-volume points"
         raise ValueError(f"{len(c)} candidates x {len(pts)} {what} = {len(c) * len(pts):,} is "

@@ -26,6 +26,13 @@ from .settings import Settings
 from .state import EMPTY_STATE, ModelState
 
 
+#: Measurements of a target the node's plans and expected errors assume: ``~/correct_target``
+#: answers one measured point (a new fiducial is assumed streamed as the fiducials so far
+#: were: the median of their pair counts, :func:`~rbc_registration.core.planner.
+#: measurement_repeats`).
+TARGET_REPEATS = 1
+
+
 @dataclass(frozen=True)
 class PlanningState:
     """What the planner knows of one model state.
@@ -64,7 +71,8 @@ def planning_state(state: ModelState, max_fiducials: Optional[int] = None) -> Pl
                              f"fiducials, more than plan_max_fiducials ({max_fiducials})")
     try:
         em = error_model_from(model)   # planning: the corrected registration
-        value = expected_target_error(model, error_model=served_error_model(model, em))
+        value = expected_target_error(model, config=PlanConfig(target_repeats=TARGET_REPEATS),
+                                      error_model=served_error_model(model, em))
     except (ValueError, np.linalg.LinAlgError) as exc:
         return PlanningState(state, None, math.nan, f"no error model: {exc}")
     return PlanningState(state, em, value, "")
@@ -77,9 +85,10 @@ def expected_error_now(planning: PlanningState, state: ModelState) -> float:
 
 
 def plan_config(settings: Settings) -> PlanConfig:
-    """The stopping rule's thresholds from the node parameters."""
+    """The stopping rule's thresholds from the node parameters; one measurement per target."""
     return PlanConfig(min_gain_fraction=settings.plan_min_gain_fraction,
-                      min_gain_length=settings.plan_min_gain_length)
+                      min_gain_length=settings.plan_min_gain_length,
+                      target_repeats=TARGET_REPEATS)
 
 
 #: Most suggestions of one ``~/suggest_next`` request: a plan runs on the executor and each

@@ -172,9 +172,21 @@ def test_a_point_far_outside_the_fiducials_is_refused(where):
     far = np.vstack([c if where == "candidates" else t, [[1e6, 0.0]]])
     args = (far, t) if where == "candidates" else (c, far)
     with pytest.raises(ValueError, match=rf"{where[:-1]} {len(far) - 1} \(1e\+06, 0\) is "
-                                         r"[\d.e+]+ from the fiducials' bounding box, more than "
-                                         r"10 x its size .*another unit"):
+                                         r"[\d.e+]+ from the centre of the points, more than "
+                                         r"10 x their typical distance .*another unit"):
         plan(x, args[0], em, args[1])
+
+
+def test_a_cell_started_from_a_few_neighbouring_fiducials_is_planned_over_its_plate():
+    """A review: 4 neighbouring corner holes (46 mm) and the other 273 holes as candidates were
+    refused as "far" when the limit was 10 x the fiducials' own size."""
+    holes = np.stack(np.meshgrid(np.arange(17) * 25.0, np.arange(21) * 25.0, indexing="ij"),
+                     -1).reshape(-1, 2)
+    start = np.array([0, 1, 21, 22])                     # a 25 mm square in one corner
+    rest = np.delete(holes, start, axis=0)
+    em = ExpectedErrorModel.from_axis_std(0.1, 300.0, [0.05, 0.05])
+    p = plan(holes[start] + [[0, 0], [0, 0.1], [0.1, 0], [0, 0]], rest, em, count=1)
+    assert np.linalg.norm(rest[p.sequence[0]]) > 300          # far from the start: spread out
 
 
 def test_a_plan_too_large_for_memory_is_refused(monkeypatch):

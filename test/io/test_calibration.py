@@ -21,7 +21,7 @@ from rbc_registration.io.calibration import (MAX_FILE_BYTES, Calibration, Decisi
                                              static_transform_publisher_command,
                                              write_calibration)
 
-APPLY = Decision(mode="auto", method="paper", apply=True, reason="rho 3.1 >= 2.5")
+APPLY = Decision(mode="rho", method="paper", apply=True, reason="rho 3.1 >= 2.5")
 
 
 def make(rotation=None, translation=(1.2, -0.4, 0.8), **overrides):
@@ -53,7 +53,7 @@ def test_write_read_round_trip_2d_unknown_sigma(tmp_path):
     angle = 2.1
     r2 = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
     cal = make(r2, [0.25, -1.5], sigma=None, expected_tre=None,
-               decision=Decision("auto", "paper", False, "no sigma: recommendation unknown"))
+               decision=Decision("rho", "paper", False, "no sigma: recommendation unknown"))
     assert (cal.dimension, cal.translation[2], cal.rotation[:2]) == (2, 0.0, (0.0, 0.0))
     assert cal.sigma is None and cal.sigma_axis is None
     path = str(tmp_path / "cal.yaml")

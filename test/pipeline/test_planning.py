@@ -72,11 +72,12 @@ def test_suggest_is_the_core_plan_once_the_error_model_is_ready():
         suggest(NO_PLANNING, state, SETTINGS, cand, None, 2)
     p = planning_state(state)
     plan = suggest(p, state, SETTINGS, cand, np.empty((0, 3)), 0)   # no targets, count 0: 1
-    ref = plan_from_model(state.model, cand, count=1)
+    ref = plan_from_model(state.model, cand, count=1, config=plan_config(SETTINGS))
     assert plan.sequence == ref.sequence and not plan.on_targets
     assert plan.expected_after == pytest.approx(ref.expected_after, rel=1e-12)
     strict = SETTINGS.replace(plan_min_gain_fraction=0.5, plan_min_gain_length=1e-4)
-    assert plan_config(strict) == PlanConfig(min_gain_fraction=0.5, min_gain_length=1e-4)
+    assert plan_config(strict) == PlanConfig(min_gain_fraction=0.5, min_gain_length=1e-4,
+                                             target_repeats=1)   # ~/correct_target: one point
     assert suggest(p, state, strict, cand, None, 1).enough
 
 

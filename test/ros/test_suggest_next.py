@@ -14,6 +14,10 @@ from geometry_msgs.msg import Point  # noqa: E402
 
 from rbc_registration.core.model_planner import expected_target_error, plan_from_model  # noqa: E402,E501
 from rbc_registration.core.planner import PlanConfig  # noqa: E402
+from rbc_registration.pipeline.planning import TARGET_REPEATS  # noqa: E402
+
+#: The node plans for targets measured once (pipeline/planning.py).
+NODE = PlanConfig(target_repeats=TARGET_REPEATS)
 from rbc_registration_interfaces.msg import RegistrationStatus  # noqa: E402
 from rbc_registration_interfaces.srv import SuggestNext  # noqa: E402
 from ros_helpers import wait_for  # noqa: E402
@@ -55,7 +59,7 @@ class TestSuggestNext(NodeTestBase):
         assert r.success, r.message
         assert len(r.ranked) == 4 and len(set(r.ranked)) == 4
         assert all(k >= 24 for k in r.ranked[:2])     # holes of the unmeasured half first
-        p = plan_from_model(state.model, self.holes, count=4)
+        p = plan_from_model(state.model, self.holes, count=4, config=NODE)
         assert list(r.ranked) == list(p.sequence)
         np.testing.assert_allclose(r.expected_error_after, p.expected_after, rtol=1e-9)
         assert r.expected_error_now == pytest.approx(p.expected_now, rel=1e-9)
@@ -65,7 +69,7 @@ class TestSuggestNext(NodeTestBase):
         # targets given: the error is taken there
         targets = self.cell["targets"]
         r = self.suggest(node, self.holes, targets, count=0)      # count 0: one
-        p = plan_from_model(state.model, self.holes, targets)
+        p = plan_from_model(state.model, self.holes, targets, config=NODE)
         assert r.success and list(r.ranked) == list(p.sequence) and p.on_targets
         assert r.expected_error_now == pytest.approx(p.expected_now, rel=1e-9)
 
@@ -73,7 +77,8 @@ class TestSuggestNext(NodeTestBase):
         node, state = self.planned_node(plan_min_gain_fraction=0.9)
         r = self.suggest(node, self.holes)
         p = plan_from_model(state.model, self.holes,
-                            config=PlanConfig(min_gain_fraction=0.9))
+                            config=PlanConfig(min_gain_fraction=0.9,
+                                              target_repeats=TARGET_REPEATS))
         assert r.success and r.enough and r.reason == p.reason
         assert r.reason.startswith("enough:")
 
@@ -85,7 +90,7 @@ class TestSuggestNext(NodeTestBase):
         node, state = self.planned_node()
         status = node.status()
         assert status.expected_target_error == pytest.approx(
-            expected_target_error(state.model), rel=1e-9)
+            expected_target_error(state.model, config=NODE), rel=1e-9)
         assert 0 < status.expected_target_error < 1e-3    # metres: a sub-millimetre error
         published = self.latest(node, RegistrationStatus, f"/{node.get_name()}/status",
                                 predicate=lambda m: not math.isnan(m.expected_target_error))
@@ -97,7 +102,7 @@ class TestSuggestNext(NodeTestBase):
                  and not math.isnan(node.status().expected_target_error),
                  what="the planner on the new model")
         assert node.status().expected_target_error == pytest.approx(
-            expected_target_error(new.model), rel=1e-9)
+            expected_target_error(new.model, config=NODE), rel=1e-9)
         assert new.model is not state.model
 
     def test_bad_requests_get_a_reason_and_the_node_keeps_serving(self):
@@ -134,5 +139,5 @@ class TestSuggestNext2D(NodeTestBase):
         r = self.srv(node, SuggestNext, "suggest_next", SuggestNext.Request(
             candidates=points(cand), count=2))
         assert r.success, r.message
-        p = plan_from_model(state.model, cand[:, :2], count=2)
+        p = plan_from_model(state.model, cand[:, :2], count=2, config=NODE)
         assert list(r.ranked) == list(p.sequence)
