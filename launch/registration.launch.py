@@ -47,13 +47,15 @@ ARGUMENTS = (
 _BOOLEANS = {"true": True, "false": False}
 
 
-def node_parameters(values: Mapping[str, str],
-                    pushed_namespace: Optional[str] = None) -> tuple[str, dict]:
+def node_parameters(values: Mapping[str, str], pushed_namespace: Optional[str] = None,
+                    environ: Optional[Mapping[str, str]] = None) -> tuple[str, dict]:
     """The node's absolute namespace and the parameters the arguments set (on top of
     params_file), from the arguments' string values.
 
     :param values: every name of :data:`ARGUMENTS` -> its value (launch configurations).
     :param pushed_namespace: the namespace of an enclosing ``PushRosNamespace``, if any.
+    :param environ: the environment the node will get (launch's ``context.environment``, which
+        ``SetEnvironmentVariable`` changes; default ``os.environ``): its ``ROS_HOME``.
     :return: ``(namespace, overrides)``; ``overrides`` holds only what is set here.
     :raises ValueError: naming the argument, for a bad namespace, node name, dimension or
         use_sim_time.
@@ -75,7 +77,7 @@ def node_parameters(values: Mapping[str, str],
                              "(or empty)")
         overrides["use_sim_time"] = _BOOLEANS[flag]
     state_dir = values["state_dir"]
-    overrides["state_dir"] = (default_state_dir(namespace, name, root=state_root())
+    overrides["state_dir"] = (default_state_dir(namespace, name, root=state_root(environ))
                               if state_dir == AUTO else state_dir)
     return namespace, overrides
 
@@ -88,7 +90,8 @@ def _launch_setup(context, *args, **kwargs):
 
     values = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
     namespace, overrides = node_parameters(
-        values, context.launch_configurations.get("ros_namespace"))
+        values, context.launch_configurations.get("ros_namespace"),
+        getattr(context, "environment", None))
     where = overrides["state_dir"] or "(none: no persistence)"
     return [
         LogInfo(msg=f"{namespace.rstrip('/')}/{values['node_name']}: state_dir {where}"),

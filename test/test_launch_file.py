@@ -101,6 +101,9 @@ def test_auto_state_dir_follows_ros_home_as_the_node_does(monkeypatch):
     monkeypatch.delenv("ROS_HOME")
     assert module.node_parameters(values)[1]["state_dir"] == \
         "~/.ros/rbc_registration/cell_a.registration_node"
+    # the environment the node gets (launch's SetEnvironmentVariable changes that one)
+    assert module.node_parameters(values, None, {"ROS_HOME": "/srv/ros"})[1]["state_dir"] == \
+        "/srv/ros/rbc_registration/cell_a.registration_node"
 
 
 def test_two_cells_get_their_own_state_dirs():
