@@ -2,8 +2,7 @@
 
 ``paper``: 3D, barycentric weights of the Delaunay tetrahedron of fiducials containing the target;
 2D, normalised inverse-distance weights of the 8 fiducials surrounding the target (the nearest
-fiducial in each 45 degree sector around it, the sectors turned to the fiducials' own grid: the 8
-neighbours of a hole on a regular grid, whatever the working frame's rotation).
+fiducial in each 45 degree sector around it, as the 8 neighbours of a hole on a regular grid).
 
 Outside the convex hull of the fiducials the target is flagged (``inside_hull = False``) and the
 correction is extrapolated: 3D, inverse-distance weights of the 4 nearest fiducials; 2D, the same
@@ -19,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from .sector_grid import GRID_MIN_TARGETS, SectorIndex
-from .sectors import grid_orientation, on_fiducial_tolerance, sector_weights
+from .sectors import on_fiducial_tolerance, sector_weights
 from .validation import as_point_pairs, as_points
 
 #: A simplex whose reciprocal condition number (infinity norm) is below this has no transform
@@ -193,16 +192,6 @@ class PaperInterpolator:
                              f"{'dimension 2 or ' if self.dim == 3 else ''}kriging")
         self.tree = cKDTree(self.points)
         self._sector_index: Optional[SectorIndex] = None
-        # 2D: the sectors follow the fiducials' own grid (sectors.grid_orientation): the points
-        # are turned by -theta for the sector rule (distances unchanged); None: theta = 0.
-        self._turn: Optional[NDArray[np.float64]] = None
-        self._sector_points, self._sector_tree = self.points, self.tree
-        theta = grid_orientation(self.points) if self.dim == 2 else 0.0
-        if theta:
-            c, s = np.cos(theta), np.sin(theta)
-            self._turn = np.array([[c, s], [-s, c]]).T          # p @ turn = R(-theta) p
-            self._sector_points = self.points @ self._turn
-            self._sector_tree = cKDTree(self._sector_points)
         # 3D: the tetrahedra's vertices as index arrays, converted once.
         self._vertices = self.hull.tri.simplices.astype(np.intp) if self.dim == 3 else None
 
@@ -266,10 +255,8 @@ class PaperInterpolator:
     def _sectors(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """The 8-sector rule (:mod:`.sectors`); batches use its grid (:mod:`.sector_grid`),
         built on first use."""
-        if self._turn is not None:
-            t = t @ self._turn
         if len(t) < GRID_MIN_TARGETS:
-            return sector_weights(self._sector_tree, self._sector_points, t)
+            return sector_weights(self.tree, self.points, t)
         if self._sector_index is None:
-            self._sector_index = SectorIndex(self._sector_points, self._sector_tree)
+            self._sector_index = SectorIndex(self.points, self.tree)
         return self._sector_index.weights(t)

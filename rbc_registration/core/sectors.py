@@ -1,9 +1,7 @@
 """The 2D sector rule of the paper's interpolation (eq. 5), as stated.
 
 The rule: around a target T, the plane is cut into 8 sectors of 45 degrees centred on the axes and
-diagonals (sector of a fiducial F: ``floor((atan2(F - T) + pi/8) / (pi/4)) mod 8``) of the
-fiducials' own grid (the interpolator turns the points by :func:`grid_orientation` first, so that
-the axes are the grid's rows and columns: the 8 surrounding holes); in each
+diagonals (sector of a fiducial F: ``floor((atan2(F - T) + pi/8) / (pi/4)) mod 8``); in each
 sector the nearest fiducial among the :data:`SECTOR_CANDIDATES` nearest to T is used, weighted by
 inverse distance (a target on a fiducial takes that fiducial alone). :func:`sector_weights` is the
 rule as stated, from a k-nearest-neighbour query of k = :data:`SECTOR_CANDIDATES`.
@@ -77,33 +75,6 @@ def _in_chunks(weights: Callable[[NDArray[np.float64]], tuple[NDArray[np.intp],
     """``weights`` of ``targets`` by chunks of ``size``, concatenated."""
     parts = [weights(targets[a:a + size]) for a in range(0, len(targets), size)]
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
-
-
-def grid_orientation(points: NDArray[np.float64]) -> float:
-    """The angle theta in (-pi/4, pi/4] of the fiducials' own grid against the working axes:
-    the mean direction, modulo 90 degrees, from each fiducial to its nearest neighbour
-    (``arg(sum exp(4 i phi)) / 4``). The sectors are turned by it, so that on a plate's grid of
-    holes they are centred on the grid's rows, columns and diagonals whatever the working
-    frame's rotation: the 8 surrounding holes of the paper. 0 when no direction dominates
-    (e.g. two fiducials) or within 1e-9 rad of the axes (an axis-aligned grid keeps the rule
-    exactly as stated). A rotation of the frame turns it along (mod 90 degrees, a relabelling of
-    the 8 sectors), so the rule is invariant to the working frame's rotation.
-
-    :param points: the fiducials (J, 2).
-    """
-    if len(points) < 2:
-        return 0.0
-    dist, near = cKDTree(points).query(points, k=2)
-    d = points[near[:, 1]] - points
-    d = d[dist[:, 1] > 0]
-    if not len(d):
-        return 0.0
-    phi = np.arctan2(d[:, 1], d[:, 0])
-    z = complex(np.cos(4 * phi).sum(), np.sin(4 * phi).sum())
-    if abs(z) <= 1e-9 * len(d):
-        return 0.0
-    theta = math.atan2(z.imag, z.real) / 4
-    return 0.0 if abs(theta) <= 1e-9 else theta
 
 
 def on_fiducial_tolerance(points: NDArray[np.float64]) -> float:
