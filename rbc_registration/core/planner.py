@@ -97,18 +97,23 @@ def measurement_repeats(config: "PlanConfig", repeats: Optional[ArrayLike]) -> t
 MAX_CANDIDATE_POINTS = 5_000_000
 #: A candidate or target farther than this many times the typical distance of the points from
 #: their centre is refused: a typo or another unit (it would also stretch the work volume of a
-#: plan without targets over empty space). Centre and distance are the median of the fiducials
-#: with the candidates (and targets), so a cell started from a few neighbouring fiducials can
-#: still be planned over its whole plate, and up to half the points may be wrong.
+#: plan without targets over empty space). Centre and distance are medians of the fiducials
+#: with the candidates (and targets, for the candidates), so a cell started from a few
+#: neighbouring fiducials can still be planned over its whole plate; a whole file in another
+#: unit is what :func:`.scale.unit_mismatch` catches.
 FAR_FACTOR = 10.0
 
 
 def check_near(points: NDArray[np.float64], fiducials: NDArray[np.float64], name: str,
-               others: Optional[NDArray[np.float64]] = None) -> None:
-    """:raises ValueError: naming the first of ``points`` farther from the median of all points
-        (``fiducials``, ``points`` and ``others``) than :data:`FAR_FACTOR` x their median
-        distance from it (at least the fiducials' size, the largest side of their box)."""
-    every = np.vstack([fiducials, points] + ([others] if others is not None else []))
+               others: Optional[NDArray[np.float64]] = None, itself: bool = True) -> None:
+    """:raises ValueError: naming the first of ``points`` farther from the median of the
+        reference points (``fiducials``, ``others`` and, with ``itself``, ``points``) than
+        :data:`FAR_FACTOR` x their median distance from it (at least the fiducials' size, the
+        largest side of their box). Targets are judged without themselves (80 targets in mm
+        against 16 points in m set the median), candidates with themselves (a cell started
+        from a few holes is planned over the plate the candidates span)."""
+    every = np.vstack([fiducials] + ([points] if itself else [])
+                      + ([others] if others is not None else []))
     centre = np.median(every, axis=0)
     size = float((fiducials.max(axis=0) - fiducials.min(axis=0)).max())
     reach = max(float(np.median(np.linalg.norm(every - centre, axis=1))), size)
@@ -302,7 +307,7 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     n_cand, n_target = measurement_repeats(config, repeats)
     pts = t if on_targets else work_volume(np.vstack([x, c]), config.work_volume_points)
     if on_targets:
-        check_near(pts, x, "target", c)
+        check_near(pts, x, "target", c, itself=False)
     if len(c) * len(pts) > MAX_CANDIDATE_POINTS:
         what = "targets" if on_targets else "work-volume points"
         raise ValueError(f"{len(c)} candidates x {len(pts)} {what} = {len(c) * len(pts):,} is "

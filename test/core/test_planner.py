@@ -177,6 +177,16 @@ def test_a_point_far_outside_the_fiducials_is_refused(where):
         plan(x, args[0], em, args[1])
 
 
+def test_targets_in_another_unit_are_refused_even_when_they_outnumber_the_rest():
+    """A review: 4 fiducials and 12 candidates in m, 80 targets in mm: the targets set the
+    median of all points, and the plan was served."""
+    rng = np.random.default_rng(2)
+    x, c = rng.uniform(0, 0.5, (4, 2)), rng.uniform(0, 0.5, (12, 2))
+    em = ExpectedErrorModel.from_axis_std(1e-4, 0.3, [5e-5, 5e-5])
+    with pytest.raises(ValueError, match=r"^target \d+ .* more than 10 x their typical"):
+        plan(x, c, em, rng.uniform(0, 500, (80, 2)))
+
+
 def test_a_cell_started_from_a_few_neighbouring_fiducials_is_planned_over_its_plate():
     """A review: 4 neighbouring corner holes (46 mm) and the other 273 holes as candidates were
     refused as "far" when the limit was 10 x the fiducials' own size."""

@@ -81,6 +81,22 @@ def test_suggest_is_the_core_plan_once_the_error_model_is_ready():
     assert suggest(p, state, strict, cand, None, 1).enough
 
 
+def test_a_request_in_another_unit_is_refused():
+    """Holes sent in mm to a node in metres were ranked (a review: a 99 % "gain")."""
+    state = grid_state(SETTINGS, xs=(0, .3))
+    cand = np.array([[x, y, z] for x in (0.6, 0.9) for y in (0, .3, .6) for z in (0, .2)])
+    p = planning_state(state)
+    with pytest.raises(ValueError, match=r"all 12 candidates are outside the fiducials' hull .*"
+                                         r"likely a unit mismatch between candidates and "
+                                         r"fiducials .*; the node works in metres"):
+        suggest(p, state, SETTINGS, cand * 1000, None, 1)
+    with pytest.raises(ValueError, match=r"all 12 targets are outside .*the node works in metres"):
+        suggest(p, state, SETTINGS, cand, cand * 1000, 1)
+    with pytest.raises(ValueError, match=r"candidates contains NaN or inf"):
+        suggest(p, state, SETTINGS, np.vstack([cand, [[np.nan, 0, 0]]]), None, 1)
+    assert suggest(p, state, SETTINGS, cand, cand, 1).on_targets
+
+
 @pytest.mark.parametrize("n_candidates, n_targets, message", [
     (21, 0, "21 candidates in one request, more than max_candidates (20): split or thin"),
     (5, 21, "21 targets in one request, more than max_candidates (20)"),
