@@ -97,7 +97,8 @@ def run(out: Path, rate: float = 20.0, seed: int = 0, timeout: float = 60.0,
         applied = bool(response.results[0].correction_applied)
         log(f"      rho = sigma_L0 / sigma = {status.rho:.3g} (sigma_L0 "
             f"{status.sigma_l[0] * MM_PER_M:.3g} mm, sigma {status.sigma * MM_PER_M:.3g} mm from "
-            f"{status.sigma_source}) -> decision: {status.recommendation}; corrections "
+            f"{status.sigma_source}) -> the paper's rule: {status.recommendation}")
+        log(f"      decision ({status.decision_mode}): {status.decision_method}, corrections "
             f"{'applied' if applied else 'not applied'}")
         log("      TRE [mm]       median    mean     max")
         log(f"      uncorrected  {np.median(tre_u):7.3f} {tre_u.mean():7.3f} {tre_u.max():7.3f}")
