@@ -50,7 +50,8 @@ def add_parser(sub: Any) -> None:
                    help="measurements to be averaged into each new fiducial (default: the "
                         "median repeat count of FIDUCIALS.csv's ids)")
     p.add_argument("--target-repeats", type=int, metavar="N",
-                   help="measurements to be averaged into each target (default: the same)")
+                   help="measurements to be averaged into each target (default: the median "
+                        "rows per id of TARGETS.csv; without it, as --candidate-repeats)")
     p.add_argument("--unit", default="mm",
                    help="unit of the files (default mm): named in the report")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the plan as JSON")
@@ -62,6 +63,10 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the plan; write JSON and the figure."""
+    from dataclasses import replace
+
+    import numpy as np
+
     from ..core.model import build_model
     from ..core.model_planner import error_model_from, plan_from_model
     from ..core.planner import PlanConfig
@@ -92,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
                         fid.working)
     tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,
                        fiducials=fid.working) if args.targets else None
+    if tgt is not None and args.target_repeats is None:
+        # the targets file's own rows per id: how often each target is measured
+        config = replace(config, target_repeats=max(1, int(round(float(np.median(tgt.counts))))))
     count = min(DEFAULT_COUNT, len(cand.ids)) if args.count is None else args.count
     model = build_model(fid.working, fid.destination, model_config(args, fid.dimension),
                         ids=fid.ids, working_repeats=fid.working_repeats)

@@ -60,11 +60,12 @@ class FiducialTable:
 
 @dataclass(frozen=True)
 class TargetTable:
-    """Targets read from CSV (repeats of an id are averaged)."""
+    """Targets read from CSV (repeats of an id are averaged; ``counts``: the rows of each id)."""
 
     ids: tuple[str, ...]
     working: NDArray[np.float64]
     destination: Optional[NDArray[np.float64]]
+    counts: tuple[int, ...] = ()
 
 
 def _read_rows(path: PathLike, required: list[str]
@@ -267,7 +268,8 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
                        f"{lines[conflict.first]}) has conflicting {conflict.frame} points: row "
                        f"{lines[conflict.row]}: {conflict.message}")
     ids, means = mean_by_id(tids, work, *([truth] if has_truth else []))
-    return TargetTable(ids, means[0], means[1] if has_truth else None)
+    counts = tuple(len(index) for index in rows_by_id(tids).values())
+    return TargetTable(ids, means[0], means[1] if has_truth else None, counts)
 
 
 def write_fiducials(path: PathLike, ids, working_repeats, destination_repeats) -> None:

@@ -78,8 +78,7 @@ def format_plan(report: dict[str, Any]) -> str:
         f"{report['n_candidates']} candidates; median target error over {where}, {reg} "
         f"registration; lengths in {u}",
         f"  each new fiducial measured {report['candidate_repeats']} time(s) and each target "
-        f"{report['target_repeats']} (as the fiducials so far; --candidate-repeats, "
-        f"--target-repeats)",
+        f"{report['target_repeats']} (--candidate-repeats, --target-repeats)",
         f"  expected median target error now  {_len(report['expected_now'], u)}",
         "  suggestions (#: the candidate's position in CANDIDATES.csv, from 0):",
         f"  {'rank':>4}  {'candidate':<12} {'#':>5} {'expected after':>16} {'gain':>12} "

@@ -131,6 +131,21 @@ def test_the_top_suggestion_fills_the_empty_region(tmp_path):
     assert g[best, 0] >= 250
 
 
+def test_targets_are_planned_as_often_measured_as_their_file_says(tmp_path, ra):
+    d, cell, _, ids, holes = ra
+    write_targets(tmp_path / "t3.csv", [t for t in cell.target_ids for _ in range(3)],
+                  np.repeat(cell.target_means, 3, axis=0))
+    out = tmp_path / "p.json"
+    run(d / "fiducials.csv", "--candidates", d / "candidates.csv", "--targets", tmp_path / "t3.csv",
+        "--count", "1", "--json", out)
+    rep = json.loads(out.read_text())
+    assert (rep["candidate_repeats"], rep["target_repeats"]) == (1, 3)
+    run(d / "fiducials.csv", "--candidates", d / "candidates.csv", "--targets", tmp_path / "t3.csv",
+        "--count", "1", "--target-repeats", "2", "--candidate-repeats", "4", "--json", out)
+    rep = json.loads(out.read_text())
+    assert (rep["candidate_repeats"], rep["target_repeats"]) == (4, 2)
+
+
 def test_candidates_in_another_unit_get_a_warning(tmp_path, ra):
     """Holes in metres against fiducials in mm planned without a word (a review)."""
     d, cell, _, ids, holes = ra
