@@ -69,6 +69,11 @@ class PublishingMixin:
                 self._tf_transforms = {"corrected": corrected, "uncorrected": uncorrected}
                 self._loaded = None  # the live model replaces a calibration_file
                 self._publish_tf()
+            elif self._loaded is None and self._tf_transforms:
+                # the live model became invalid (e.g. fiducials disabled below min_fiducials):
+                # /tf_static no longer holds a registration the node refuses to serve
+                self._tf_transforms = {}
+                self._publish_tf()
             self._pub_markers.publish(markers)
         self._publish_status()
         self._plan_model(state)   # ~/status expected_target_error follows from its thread

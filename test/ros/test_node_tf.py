@@ -81,6 +81,28 @@ class TestTfFollowsTheModel(NodeTestBase):
         np.testing.assert_allclose(transform_to_matrix(self.entry(self.late_tf(node))),
                                    _matrix(model.corrected), atol=1e-12)
 
+    def test_a_model_that_becomes_invalid_leaves_tf_static(self):
+        """A review: with fiducials disabled below min_fiducials the node refused to answer
+        (model_valid false) while /tf_static kept the registration of the excluded fiducials."""
+        from rbc_registration_interfaces.srv import SetFiducialEnabled
+        node = self.make_node(tf_broadcast="corrected", min_fiducials=4)
+        self.stream(node, range(5))
+        model = self.recompute(node).model
+        assert model is not None and self.entry(self.late_tf(node)) is not None
+        for fid in model.ids[:2]:
+            assert self.srv(node, SetFiducialEnabled, "set_fiducial_enabled",
+                            SetFiducialEnabled.Request(fiducial_id=fid, enabled=False)).success
+        assert self.recompute(node).model is None
+        assert self.entry(self.late_tf(node)) is None
+        node.set_parameters([Parameter("tf_broadcast", value="none")])
+        node.set_parameters([Parameter("tf_broadcast", value="corrected")])
+        assert self.entry(self.late_tf(node)) is None        # not brought back either
+        assert self.srv(node, SetFiducialEnabled, "set_fiducial_enabled",
+                        SetFiducialEnabled.Request(fiducial_id=model.ids[0], enabled=True)).success
+        again = self.recompute(node).model
+        np.testing.assert_allclose(transform_to_matrix(self.entry(self.late_tf(node))),
+                                   _matrix(again.corrected), atol=1e-12)
+
     def test_without_tf2_msgs_the_node_warns_and_keeps_working(self, monkeypatch):
         import rbc_registration.ros.tf_static as tf_static
 
