@@ -92,6 +92,9 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
     def _start(self, build: Callable[..., ModelState], write_snapshot: Callable[[str, str], None],
                clock: Callable[[], float]) -> None:
         self._settings = params.declare(self)
+        unknown = params.unknown_overrides(getattr(self, "_parameter_overrides", {}))
+        if unknown:
+            self.get_logger().warning(unknown)
         s = self._settings
         # A calibration_file is read (and refused, naming why) before anything else starts.
         self._loaded = saved.load(s.calibration_file, s) if s.calibration_file else None

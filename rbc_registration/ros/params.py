@@ -5,10 +5,30 @@ the wrong ROS type. Units: metres and seconds (REP 103).
 
 from __future__ import annotations
 
-from typing import Any
+import difflib
+from typing import Any, Iterable
 
 from ..io.state_paths import default_state_dir, state_root
 from ..pipeline.settings import REMOVED, SPECS, STATE_DIR_AUTO, Settings
+
+#: Parameters rclpy itself declares or reads (never reported as unknown).
+ROS_PARAMETERS = ("use_sim_time", "start_type_description_service")
+
+
+def unknown_overrides(names: Iterable[str]) -> str:
+    """The warning for start-up overrides (``-p name:=value``, a params file) that name no
+    parameter of the node, each with the closest parameter name if one is close ("" when all
+    are known). rclpy ignores them silently: ``decison:="'off'"`` left the decision ``cv``."""
+    unknown = sorted(n for n in names if n not in SPECS and n not in ROS_PARAMETERS
+                     and n not in REMOVED and not n.startswith("qos_overrides."))
+    if not unknown:
+        return ""
+    parts = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, SPECS, n=1, cutoff=0.75)
+        parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
+    return (f"ignored {len(unknown)} parameter(s) this node does not have: {', '.join(parts)} "
+            f"(its parameters: msg_docs/README.md)")
 
 #: ROS parameter type names of the Python types of :data:`SPECS` defaults.
 ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string"}

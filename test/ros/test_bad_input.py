@@ -155,6 +155,20 @@ class TestNodeBadInput(RosTestBase):
         wait_for(found, what=f"a log line with {fragment!r}")
         return found()[-1]
 
+    def test_a_misspelt_start_up_parameter_is_warned_about(self):
+        """-p decison:="'off'" started the node with the decision cv, without a word."""
+        name = f"{self.name}_typo"
+        node = self.ros.add(RegistrationNode(name, context=self.ros.context, parameter_overrides=[
+            Parameter("decison", value="off"), Parameter("debounce_period", value=0.05)]))
+        try:
+            def found():
+                return [m for m in self.logs[self.n_logs:] if m.name == name
+                        and m.level == Log.WARN and "decison (did you mean decision?)" in m.msg]
+            wait_for(found, what="the WARN naming the misspelt parameter")
+            assert node._settings.decision == "cv"                # ignored, as rclpy does
+        finally:
+            self.ros.remove(node)
+
     def assert_unharmed(self, rejected=0):
         """Nothing accepted was lost or added, and a valid target gets the same answer."""
         status = self.node.status()

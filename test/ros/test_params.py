@@ -33,3 +33,12 @@ def test_a_wrong_type_names_the_parameter_and_both_types():
         "Wrong parameter type: interpolation must be of type string, got bool True (YAML reads "
         "an unquoted on, off, yes, no, true or false as a boolean: quote it, e.g. "
         "interpolation:=\"'off'\" on the command line or interpolation: 'off' in a file)")
+
+
+def test_start_up_overrides_the_node_does_not_have_are_named_with_the_closest_parameter():
+    """A review: -p decison:="'off'" started the node with the decision cv, without a word."""
+    assert params.unknown_overrides(["decision", "use_sim_time", "qos_overrides./tf.depth"]) == ""
+    text = params.unknown_overrides(["decison", "interpolaton", "sigma", "colour"])
+    assert text == ("ignored 3 parameter(s) this node does not have: colour, decison (did you "
+                    "mean decision?), interpolaton (did you mean interpolation?) (its "
+                    "parameters: msg_docs/README.md)")
