@@ -78,6 +78,7 @@ class Journal:
         self._needs_header = False    # the header is written with the first record that fits
         self._dirty = False           # a failed write could not be cut off yet
         self.n_skipped = 0            # lines skipped by the last load (torn, corrupt, invalid)
+        self._unterminated = False    # the last load kept a last record without its newline
 
     def load(self) -> tuple[list[Record], list[str]]:
         """Read the existing journal (if any) and open it for appending.
@@ -105,6 +106,16 @@ class Journal:
         error = self._open(truncate_to=good_end)
         if error:
             warnings.append(error)
+        if self._unterminated:
+            try:
+                self._write(b"\n")
+            except OSError as exc:        # cannot end the line: cut it off as a torn record
+                self._size -= len(data) - data.rfind(b"\n") - 1
+                os.ftruncate(self._fd, self._size)
+                records.pop()
+                warnings[-1 if not error else -2] = (
+                    f"{self.path}: last record without a newline skipped: the newline could "
+                    f"not be added ({exc})")
         return records, warnings
 
     def _parse(self, data: bytes) -> tuple[list[Record], list[str], int, Optional[int]]:
@@ -112,14 +123,23 @@ class Journal:
         records: list[Record] = []
         warnings: list[str] = []
         offset = good_end = lineno = 0
+        self._unterminated = False
         version: Optional[int] = None
         unsealed = 0   # records that failed their checksum
         while offset < len(data):
             end = data.find(b"\n", offset)
             lineno += 1
             if end < 0:
-                warnings.append(f"{self.path}:{lineno}: torn last record "
-                                f"({len(data) - offset} bytes without a newline) skipped")
+                kept = self._whole_last_record(data[offset:], version)
+                if kept is not None:      # only its newline is missing (a hand edit, a restore)
+                    records.append(kept)
+                    good_end = len(data)
+                    self._unterminated = True     # load() adds the newline
+                    warnings.append(f"{self.path}:{lineno}: last record without a newline kept "
+                                    f"(its checksum holds); the newline added")
+                else:
+                    warnings.append(f"{self.path}:{lineno}: torn last record "
+                                    f"({len(data) - offset} bytes without a newline) skipped")
                 break
             raw = data[offset:end].strip()
             offset = good_end = end + 1
@@ -149,8 +169,19 @@ class Journal:
                 f"{self.path} has no header line and none of its {unsealed} record(s) was "
                 f"written for this setup ({self._setup()}): move the journal away or start "
                 f"with the parameters it was written with")
-        self.n_skipped = len(warnings)
+        self.n_skipped = len(warnings) - self._unterminated    # the kept record: not skipped
         return records, warnings, good_end, version
+
+    def _whole_last_record(self, raw: bytes, version: Optional[int]) -> Optional[Record]:
+        """The record of a last line without its newline when its checksum holds (sealed
+        versions only: a write cut short never verifies), else None."""
+        raw = raw.strip()
+        if version is None or version == 1 or not raw or len(raw) > MAX_LINE_BYTES:
+            return None
+        try:
+            return record_from_json(unseal(raw, self.digest).decode("utf-8"))
+        except (ValueError, KeyError, TypeError, RecursionError):
+            return None
 
     def _setup(self) -> str:
         return ", ".join(f"{k}={v!r}" for k, v in self.header.items() if k not in ("t", "version"))

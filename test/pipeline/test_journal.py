@@ -114,6 +114,27 @@ def test_torn_last_line_is_skipped_with_a_warning_and_cut_off(tmp_path):
     assert Journal(str(tmp_path), HEADER).load() == (records(), [])
 
 
+def test_a_whole_last_record_without_its_newline_is_kept(tmp_path):
+    """A review: a journal whose final newline was lost (a hand edit, `printf %s "$(cat ...)"`)
+    had its last, valid record deleted from disk as torn."""
+    j = Journal(str(tmp_path), HEADER)
+    j.load()
+    for r in records()[:2]:
+        j.append(r)
+    j.close()
+    path = tmp_path / JOURNAL_NAME
+    path.write_bytes(path.read_bytes()[:-1])
+    j2 = Journal(str(tmp_path), HEADER)
+    loaded, warnings = j2.load()
+    assert loaded == records()[:2] and j2.n_skipped == 0
+    assert len(warnings) == 1 and "last record without a newline kept (its checksum holds)" in \
+        warnings[0]
+    assert path.read_bytes().endswith(b"\n")
+    j2.append(records()[2])
+    j2.close()
+    assert Journal(str(tmp_path), HEADER).load() == (records(), [])
+
+
 def test_corrupt_middle_line_is_skipped(tmp_path):
     j = Journal(str(tmp_path), HEADER)
     j.load()
