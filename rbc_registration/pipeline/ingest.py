@@ -201,7 +201,8 @@ class Ingest:
                 try:
                     archived = self._journal.archive()
                 except OSError as exc:
-                    return False, (f"nothing forgotten: archiving the journal failed: {exc}")
+                    return False, (f"nothing forgotten: archiving the journal (and snapshot) "
+                                   f"failed: {exc}")
             self._acc.clear()
             self._pairer.clear()
             self.n_journal_failures = 0
