@@ -320,7 +320,8 @@ def test_a_failed_archive_leaves_the_journal_open_and_reset_forgets_nothing(tmp_
 
     monkeypatch.setattr(os, "replace", refuse)
     ok, message = ingest.reset()
-    assert not ok and message.startswith("nothing forgotten: archiving the journal (and snapshot) failed")
+    assert not ok and message.startswith(
+        "nothing forgotten: archiving the journal (and snapshot) failed")
     assert acc.fiducial_set().ids == ("H1",)
     monkeypatch.setattr(os, "replace", real_replace)
     journal.append(records()[1])                     # still open
