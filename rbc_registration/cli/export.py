@@ -11,6 +11,9 @@ from typing import Any
 from ..io.escape import terminal
 from .options import refuse_outputs_onto_inputs
 
+#: Largest report or snapshot read (a snapshot of 100,000 fiducials is ~30 MB).
+MAX_SOURCE_BYTES = 256 << 20
+
 
 def add_parser(sub: Any) -> None:
     """Add ``export`` to the subparsers of ``rbc-registration``."""
@@ -39,12 +42,16 @@ def run(args: argparse.Namespace) -> int:
     from ..io.calibration import (launch_snippet, static_transform_publisher_command,
                                   write_calibration)
     from ..io.calibration_model import calibration_from_document
+    from ..pipeline.files import NotARegularFile, check_input_file
 
     refuse_outputs_onto_inputs([("--out", args.out)], [("source", args.source)])
     where = str(args.source)
     try:
+        check_input_file(where, MAX_SOURCE_BYTES)
         text = args.source.read_text(encoding="utf-8")
         mtime = args.source.stat().st_mtime
+    except NotARegularFile:
+        raise
     except (OSError, UnicodeDecodeError) as exc:
         raise ValueError(f"{where}: cannot be read: {exc}") from None
     try:

@@ -20,9 +20,12 @@ from numpy.typing import ArrayLike, NDArray
 from ..core.constants import DIMENSIONS
 from ..core.repeats import repeat_outlier, typical_spacing
 from ..core.validation import MAX_ABS_COORDINATE
+from ..pipeline.files import NotARegularFile, check_input_file
 from ..pipeline.targets import first_conflict, mean_by_id, rows_by_id
 
 PathLike = Union[str, Path]
+#: Largest CSV file read (1 GiB: some 10 million rows).
+MAX_CSV_BYTES = 1 << 30
 #: A repeat of one id farther than this fraction of the typical fiducial spacing from the mean of
 #: the id's earlier rows: a conflict in the destination frame (two different points, one id), an
 #: outlier in the working frame (the node's ``outlier_distance`` rule, relative to the spacing).
@@ -76,6 +79,7 @@ def _read_rows(path: PathLike, required: list[str]
     are skipped like blank lines."""
     p = Path(path)
     try:
+        check_input_file(str(p), MAX_CSV_BYTES)
         with p.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             header = [h.strip() for h in (reader.fieldnames or [])]
@@ -87,6 +91,8 @@ def _read_rows(path: PathLike, required: list[str]
             x.strip() for v in row.values() if isinstance(v, list) for x in v)]
     except FileNotFoundError:
         raise CsvError(f"{p}: no such file") from None
+    except NotARegularFile as exc:
+        raise CsvError(str(exc)) from None
     except (UnicodeDecodeError, csv.Error) as exc:
         raise CsvError(f"{p}: not a readable CSV file ({exc})") from None
     if not header:

@@ -97,6 +97,21 @@ def open_private(path: str, flags: int) -> int:
     return fd
 
 
+def check_input_file(path: str, limit: int) -> None:
+    """A file the user names as input (a symlink to one is fine): it must be a regular file of
+    at most ``limit`` bytes (``/dev/zero`` as a CSV read until memory ran out).
+
+    :raises FileNotFoundError: when it does not exist.
+    :raises NotARegularFile: naming the path and what it is, or its size over the limit.
+    """
+    st = os.stat(path)
+    if not stat.S_ISREG(st.st_mode):
+        raise NotARegularFile(f"{path} is {_kind(st.st_mode)}, not a regular file: refused")
+    if st.st_size > limit:
+        raise NotARegularFile(f"{path} is {st.st_size} bytes, more than the limit of {limit}: "
+                              f"refused")
+
+
 def read_fd(fd: int, path: str, limit: int) -> bytes:
     """Read the whole regular file open as ``fd`` from offset 0, at most ``limit`` bytes.
 

@@ -173,6 +173,13 @@ def test_an_edited_snapshot_is_one_line_exit_2(tmp_path, capsys, node_state, fie
     assert message in err and len(err.strip().splitlines()) == 1, err
 
 
+def test_a_source_that_is_not_a_regular_file_is_refused(capsys):
+    assert cli.main(["export", "/dev/zero"]) == 2
+    err = capsys.readouterr().err
+    assert "/dev/zero is a character device, not a regular file: refused" in err
+    assert len(err.strip().splitlines()) == 1
+
+
 def test_missing_file(tmp_path, capsys):
     assert cli.main(["export", str(tmp_path / "nope.json")]) == 2
     assert "cannot be read" in capsys.readouterr().err

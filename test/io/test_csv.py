@@ -77,6 +77,23 @@ def test_bad_fiducial_files(tmp_path, text, message):
         read_fiducials(write(tmp_path, text))
 
 
+@pytest.mark.parametrize("what, kind", [("/dev/zero", "a character device"),
+                                        ("dir", "a directory")])
+def test_an_input_that_is_not_a_regular_file_is_refused(tmp_path, what, kind):
+    """/dev/zero as a CSV was read until memory ran out, then a MemoryError traceback."""
+    path = tmp_path if what == "dir" else what
+    with pytest.raises(CsvError, match=rf"is {kind}, not a regular file: refused"):
+        read_fiducials(path)
+    link = tmp_path / "link.csv"
+    link.symlink_to("/dev/zero")
+    with pytest.raises(CsvError, match="is a character device, not a regular file"):
+        read_targets(link, 3)
+    good = tmp_path / "f.csv"
+    good.write_text("id,wx,wy,dx,dy\na,0,0,0,0\nb,1,0,1,0\nc,0,1,0,1\n")
+    (tmp_path / "good_link.csv").symlink_to(good)                 # a symlink to a file is fine
+    assert read_fiducials(tmp_path / "good_link.csv").ids == ("a", "b", "c")
+
+
 def test_missing_file_and_binary(tmp_path):
     with pytest.raises(CsvError, match="no such file"):
         read_fiducials(tmp_path / "nope.csv")
