@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from ..io.escape import terminal
-from .options import add_model_options, refuse_outputs_onto_inputs, warn, warn_unit_mismatch
+from .options import (add_model_options, refuse_outputs_onto_inputs, warn, warn_blunders,
+                      warn_unit_mismatch)
 
 #: The input topics that can be named, with what they carry.
 TOPIC_OPTIONS = (("fiducial", "fiducial_pairs", "FiducialPair"),
@@ -133,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
                        ev.targets.working if ev.targets is not None else None, ev.report,
                        ev.model.destination,
                        ev.targets.destination if ev.targets is not None else None)
+    warn_blunders("evaluate", ev.model, "m")
     if args.json:
         write_json(ev.report, args.json)
         print(f"wrote {terminal(args.json)}")

@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 from ..io.escape import terminal
-from .options import (add_model_options, name_list, non_negative, refuse_outputs_onto_inputs,
-                      warn, warn_unit_mismatch)
+from .options import (add_model_options, name_list, non_negative, refuse_outputs_onto_inputs, warn,
+                      warn_blunders, warn_unit_mismatch)
 
 if TYPE_CHECKING:   # imported when the subcommand runs (a fast --help)
     from ..core.model import ModelConfig
@@ -87,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_report(report))
     warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report,
                        model.destination, tgt.destination if tgt else None)
+    warn_blunders("register", model, args.unit)
     if args.json:
         write_json(report, args.json)
         print(f"wrote {terminal(args.json)}")
