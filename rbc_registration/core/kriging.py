@@ -46,6 +46,10 @@ __all__ = ["EXACT_MAX_FIDUCIALS", "KrigingHyperparameters", "KrigingInterpolator
 #: predictions of cross-validation condition on a summary of the data (module docstring,
 #: :mod:`.kriging_summary`). Measured against the exact values in benchmarks/RESULTS.md.
 EXACT_MAX_FIDUCIALS = 2000
+#: Most fiducials kriged at all: the model factors a J x J covariance (1.8 GB at 15,000;
+#: 100,000 fiducials ended in a MemoryError traceback asking for 74.5 GiB). Above it kriging is
+#: an unavailable candidate of the decision, and refused when configured.
+MAX_FIDUCIALS = 15000
 
 
 def summarised(count: int) -> bool:
@@ -84,6 +88,10 @@ class KrigingInterpolator:
         if j < self.dim + 1:
             raise ValueError(f"kriging in {self.dim}D needs at least {self.dim + 1} fiducials, "
                              f"got {j}")
+        if j > MAX_FIDUCIALS:
+            raise ValueError(f"kriging holds a J x J covariance: {j} fiducials would need "
+                             f"{8 * j * j / 1e9:.3g} GB for it, at most {MAX_FIDUCIALS} are "
+                             f"kriged (use the paper's interpolation, or fewer fiducials)")
         n = repeat_counts(repeats, j)
         if sigma is not None and (not math.isfinite(sigma) or sigma < 0):
             raise ValueError(f"sigma must be finite and >= 0, got {sigma}")

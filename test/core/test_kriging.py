@@ -160,3 +160,22 @@ def test_exact_rigid_data_on_few_fiducials_fits_without_numpy_warnings():
         warnings.simplefilter("error")
         model = build_model(x, x.copy(), ModelConfig(dimension=3))
     assert model.decision.method == "uncorrected"
+
+
+def test_more_fiducials_than_kriging_holds_are_one_clear_refusal(monkeypatch):
+    """100,000 fiducials ended in a MemoryError traceback (a 74.5 GiB covariance); above
+    MAX_FIDUCIALS kriging is refused, and the decision goes on without it."""
+    import rbc_registration.core.kriging as kriging
+    from rbc_registration.core.model import ModelConfig, build_model
+    monkeypatch.setattr(kriging, "MAX_FIDUCIALS", 20)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 1, (21, 3))
+    y = x + 0.01 * np.sin(3 * x) + rng.normal(0, 1e-4, x.shape)
+    with pytest.raises(ValueError, match=r"^kriging holds a J x J covariance: 21 fiducials "
+                                         r"would need .* GB for it, at most 20 are kriged"):
+        KrigingInterpolator(x, y - x)
+    model = build_model(x, y, ModelConfig(dimension=3))            # cv: paper or uncorrected
+    assert "kriging" in model.decision.cross_validation.unavailable
+    assert model.decision.method != "kriging"
+    with pytest.raises(ValueError, match="at most 20 are kriged"):
+        build_model(x, y, ModelConfig(dimension=3, interpolation="kriging"))
