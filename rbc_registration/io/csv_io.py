@@ -94,9 +94,13 @@ def _read_rows(path: PathLike, required: list[str]
     except NotARegularFile as exc:
         raise CsvError(str(exc)) from None
     except (UnicodeDecodeError, csv.Error) as exc:
-        raise CsvError(f"{p}: not a readable CSV file ({exc})") from None
+        raise CsvError(f"{p}: not a readable CSV file ({exc}){_likely_format(p)}") from None
     if not header:
         raise CsvError(f"{p}: empty file (expected a header {','.join(required)})")
+    hint = _header_hint(header)
+    if hint:
+        raise CsvError(f"{p}: the header {','.join(header)!r} {hint}; expected comma-separated "
+                       f"columns {','.join(required)} (decimal point '.') in its first line")
     twice = sorted({h for h in header if h and header.count(h) > 1})
     if twice:
         raise CsvError(f"{p}: column(s) {', '.join(twice)} appear more than once in the header "
@@ -114,6 +118,32 @@ def _read_rows(path: PathLike, required: list[str]
     if not rows:
         raise CsvError(f"{p}: no data rows")
     return header, rows
+
+
+def _likely_format(p: Path) -> str:
+    """What a file that does not decode as UTF-8 probably is (spreadsheets' other exports)."""
+    try:
+        with p.open("rb") as fh:
+            start = fh.read(2)
+    except OSError:
+        return ""
+    if start in (b"\xff\xfe", b"\xfe\xff"):
+        return ": it is UTF-16 text (Excel's 'Unicode text'): save it as 'CSV UTF-8'"
+    return ": not UTF-8 (e.g. Windows-1252 text): save it as 'CSV UTF-8'"
+
+
+def _header_hint(header: list[str]) -> str:
+    """Why a header line is likely no header: a spreadsheet's ``sep=`` line, a comment line,
+    or another separator (semicolons, tabs), or "" when it looks like one."""
+    first = header[0] if header else ""
+    if first.lower().startswith("sep="):
+        return "is a spreadsheet's 'sep=' line: remove it"
+    if first.startswith("#"):
+        return "is a comment line: remove the lines before the header"
+    if len(header) == 1 and (";" in first or "\t" in first):
+        which = "semicolons" if ";" in first else "tabs"
+        return f"is one column holding {which}: a file separated by {which}"
+    return ""
 
 
 def _number(p: PathLike, line: int, column: str, text: Optional[str]) -> float:

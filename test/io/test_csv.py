@@ -94,6 +94,24 @@ def test_an_input_that_is_not_a_regular_file_is_refused(tmp_path, what, kind):
     assert read_fiducials(tmp_path / "good_link.csv").ids == ("a", "b", "c")
 
 
+@pytest.mark.parametrize("content, message", [
+    (b"id;wx;wy;dx;dy\na;0,5;0;0;0\n", "is one column holding semicolons: a file separated by "
+                                       "semicolons"),
+    (b"id\twx\twy\tdx\tdy\na\t0\t0\t0\t0\n", "is one column holding tabs"),
+    (b"sep=,\nid,wx,wy,dx,dy\na,0,0,0,0\n", "is a spreadsheet's 'sep=' line: remove it"),
+    (b"# exported by Tracker 3.1\nid,wx,wy,dx,dy\n", "is a comment line: remove the lines"),
+    ("id,wx,wy,dx,dy\n".encode("utf-16"), "it is UTF-16 text (Excel's 'Unicode text'): save it "
+                                          "as 'CSV UTF-8'"),
+    ("id,wx,wy,dx,dy\nä,0,0,0,0\n".encode("cp1252"), "not UTF-8 (e.g. Windows-1252 text)"),
+])
+def test_other_spreadsheet_exports_are_named(tmp_path, content, message):
+    """A review: these were refused as "row 2: 7 fields, the header has 1" or a byte offset."""
+    path = tmp_path / "f.csv"
+    path.write_bytes(content)
+    with pytest.raises(CsvError, match=re.escape(message)):
+        read_fiducials(path, dim=2)
+
+
 def test_missing_file_and_binary(tmp_path):
     with pytest.raises(CsvError, match="no such file"):
         read_fiducials(tmp_path / "nope.csv")
