@@ -155,8 +155,11 @@ COLLINEAR_DESTINATION = np.array([
 def test_a_diverging_cg_step_is_taken_again_by_the_direct_solver():
     auto = restore_rigid_body(COLLINEAR_WORKING, COLLINEAR_DESTINATION)
     direct = restore_rigid_body(COLLINEAR_WORKING, COLLINEAR_DESTINATION, solver="direct")
-    np.testing.assert_array_equal(auto.corrections, direct.corrections)
+    # The minimum-norm steps (whether CG diverged here depends on the scipy version: with
+    # Ubuntu 24.04's 1.11.4 it did not, and its steps agree with the direct ones to 1e-10 mm).
+    np.testing.assert_allclose(auto.corrections, direct.corrections, rtol=0, atol=1e-8)
     assert auto.sigma_l[2] <= auto.sigma_l[1] < 1e-3 * auto.sigma_l[0]
+    assert np.abs(auto.corrections).max() < 1.0               # not 173 mm
 
 
 def test_a_step_that_diverges_with_every_solver_is_refused(monkeypatch):
