@@ -42,16 +42,14 @@ def run(args: argparse.Namespace) -> int:
     from ..io.calibration import (launch_snippet, static_transform_publisher_command,
                                   write_calibration)
     from ..io.calibration_model import calibration_from_document
-    from ..pipeline.files import NotARegularFile, check_input_file
+    from ..pipeline.files import check_input_file
 
     refuse_outputs_onto_inputs([("--out", args.out)], [("source", args.source)])
     where = str(args.source)
     try:
-        check_input_file(where, MAX_SOURCE_BYTES)
+        check_input_file(where, MAX_SOURCE_BYTES)      # NotARegularFile: a ValueError, as is
         text = args.source.read_text(encoding="utf-8")
         mtime = args.source.stat().st_mtime
-    except NotARegularFile:
-        raise
     except (OSError, UnicodeDecodeError) as exc:
         raise ValueError(f"{where}: cannot be read: {exc}") from None
     try:

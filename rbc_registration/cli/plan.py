@@ -65,11 +65,9 @@ def run(args: argparse.Namespace) -> int:
     """Print the plan; write JSON and the figure."""
     from dataclasses import replace
 
-    import numpy as np
-
     from ..core.model import build_model
     from ..core.model_planner import error_model_from, plan_from_model
-    from ..core.planner import PlanConfig
+    from ..core.planner import PlanConfig, typical_repeats
     from ..io.csv_io import read_fiducials, read_targets
     from ..io.plan_report import format_plan, plan_report
     from ..io.report import write_json
@@ -99,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
                        fiducials=fid.working) if args.targets else None
     if tgt is not None and args.target_repeats is None:
         # the targets file's own rows per id: how often each target is measured
-        config = replace(config, target_repeats=max(1, int(round(float(np.median(tgt.counts))))))
+        config = replace(config, target_repeats=typical_repeats(tgt.counts))
     count = min(DEFAULT_COUNT, len(cand.ids)) if args.count is None else args.count
     model = build_model(fid.working, fid.destination, model_config(args, fid.dimension),
                         ids=fid.ids, working_repeats=fid.working_repeats)
@@ -126,11 +124,8 @@ def _warn_unit_mismatch(fiducials: Any, candidates: Any, targets: Any) -> None:
     """One warning line for candidates, and one for targets, that lie all outside the fiducials'
     hull at a scale ~100x off theirs (:func:`rbc_registration.core.scale.unit_mismatch`)."""
     from ..core.interpolation import HullTest
-    from ..core.scale import unit_mismatch
+    from ..core.scale import point_sets_unit_mismatch
 
-    hull = HullTest(fiducials)
-    for what, points in (("candidates", candidates), ("targets", targets)):
-        text = None if points is None else unit_mismatch(
-            fiducials, points, hull.simplices(points) >= 0, what, what)
-        if text:
-            warn("plan", text)
+    for text in point_sets_unit_mismatch(fiducials, HullTest(fiducials),
+                                         (("candidates", candidates), ("targets", targets))):
+        warn("plan", text)

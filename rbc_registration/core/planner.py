@@ -81,12 +81,18 @@ class PlanConfig:
                 _check_count(getattr(self, name), name)
 
 
+def typical_repeats(counts: Optional[ArrayLike]) -> int:
+    """The median of repeat counts, rounded, at least 1 (1 without counts)."""
+    if counts is None or np.size(counts) == 0:
+        return 1
+    return max(1, int(round(float(np.median(np.asarray(counts, dtype=float))))))
+
+
 def measurement_repeats(config: "PlanConfig", repeats: Optional[ArrayLike]) -> tuple[int, int]:
     """The measurements averaged into a new fiducial and into each target: the config's, or
-    where it says None, the median of the current fiducials' repeat counts ``repeats`` (1
-    without them): a cell measured 200 times a point is planned for 200 more, not 1."""
-    typical = 1 if repeats is None or np.size(repeats) == 0 else \
-        max(1, int(round(float(np.median(np.asarray(repeats, dtype=float))))))
+    where it says None, the median of the current fiducials' repeat counts ``repeats``
+    (:func:`typical_repeats`): a cell measured 200 times a point is planned for 200 more."""
+    typical = typical_repeats(repeats)
     return (typical if config.candidate_repeats is None else config.candidate_repeats,
             typical if config.target_repeats is None else config.target_repeats)
 

@@ -5,7 +5,7 @@ frame in another unit, or mirrored)."""
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Any, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -57,6 +57,21 @@ def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: ArrayLi
         return None
     return (f"all {len(t)} {noun} are outside the fiducials' hull and ~{ratio:.3g}x {how}: "
             f"likely a unit mismatch between {what} and fiducials (e.g. m vs mm)")
+
+
+def point_sets_unit_mismatch(fiducials: ArrayLike, hull: Any,
+                             named: Sequence[tuple[str, Optional[ArrayLike]]]) -> list[str]:
+    """:func:`unit_mismatch` of each named set of points (e.g. ``("candidates", c)``, ``None``:
+    not given), inside-hull flags from ``hull`` (an :class:`~.interpolation.HullTest` of the
+    fiducials): the warning lines, one per set that looks like another unit."""
+    out = []
+    for what, points in named:
+        if points is not None:
+            pts = np.asarray(points, dtype=float)
+            text = unit_mismatch(fiducials, pts, hull.simplices(pts) >= 0, what, what)
+            if text:
+                out.append(text)
+    return out
 
 
 def frame_mismatch(working: ArrayLike, destination: ArrayLike) -> Optional[str]:

@@ -78,7 +78,7 @@ class Journal:
         self._needs_header = False    # the header is written with the first record that fits
         self._dirty = False           # a failed write could not be cut off yet
         self.n_skipped = 0            # lines skipped by the last load (torn, corrupt, invalid)
-        self._unterminated = False    # the last load kept a last record without its newline
+        self._unterminated: Optional[int] = None   # offset of a kept last record without newline
 
     def load(self) -> tuple[list[Record], list[str]]:
         """Read the existing journal (if any) and open it for appending.
@@ -104,18 +104,17 @@ class Journal:
             fd = open_private(self.path, os.O_RDWR | os.O_APPEND)
             self._fd, good_end = fd, os.fstat(fd).st_size
         error = self._open(truncate_to=good_end)
-        if error:
-            warnings.append(error)
-        if self._unterminated:
+        if self._unterminated is not None:
             try:
                 self._write(b"\n")
             except OSError as exc:        # cannot end the line: cut it off as a torn record
-                self._size -= len(data) - data.rfind(b"\n") - 1
-                os.ftruncate(self._fd, self._size)
+                os.ftruncate(self._fd, self._unterminated)
+                self._size = self._unterminated
                 records.pop()
-                warnings[-1 if not error else -2] = (
-                    f"{self.path}: last record without a newline skipped: the newline could "
-                    f"not be added ({exc})")
+                warnings[-1] = (f"{self.path}: last record without a newline skipped: the "
+                                f"newline could not be added ({exc})")   # the parse's last
+        if error:
+            warnings.append(error)
         return records, warnings
 
     def _parse(self, data: bytes) -> tuple[list[Record], list[str], int, Optional[int]]:
@@ -123,7 +122,7 @@ class Journal:
         records: list[Record] = []
         warnings: list[str] = []
         offset = good_end = lineno = 0
-        self._unterminated = False
+        self._unterminated = None
         version: Optional[int] = None
         unsealed = 0   # records that failed their checksum
         while offset < len(data):
@@ -133,8 +132,7 @@ class Journal:
                 kept = self._whole_last_record(data[offset:], version)
                 if kept is not None:      # only its newline is missing (a hand edit, a restore)
                     records.append(kept)
-                    good_end = len(data)
-                    self._unterminated = True     # load() adds the newline
+                    self._unterminated, good_end = offset, len(data)   # load() adds the newline
                     warnings.append(f"{self.path}:{lineno}: last record without a newline kept "
                                     f"(its checksum holds); the newline added")
                 else:
@@ -169,7 +167,7 @@ class Journal:
                 f"{self.path} has no header line and none of its {unsealed} record(s) was "
                 f"written for this setup ({self._setup()}): move the journal away or start "
                 f"with the parameters it was written with")
-        self.n_skipped = len(warnings) - self._unterminated    # the kept record: not skipped
+        self.n_skipped = len(warnings) - (self._unterminated is not None)   # kept: not skipped
         return records, warnings, good_end, version
 
     def _whole_last_record(self, raw: bytes, version: Optional[int]) -> Optional[Record]:

@@ -22,7 +22,7 @@ from ..core.expected_error import ExpectedErrorModel
 from ..core.model_planner import (error_model_from, expected_target_error, plan_from_model,
                                   served_error_model)
 from ..core.planner import MeasurementPlan, PlanConfig
-from ..core.scale import unit_mismatch
+from ..core.scale import point_sets_unit_mismatch
 from ..core.validation import as_points
 from .settings import Settings
 from .state import EMPTY_STATE, ModelState
@@ -140,13 +140,11 @@ def suggest(planning: PlanningState, state: ModelState, settings: Settings,
     d = state.model.working.shape[1]
     candidates = as_points(candidates, "candidates", d, 1)
     targets = None if targets is None else as_points(targets, "targets", d, 1)
-    hull = state.model.interpolator.hull
-    for what, points in (("candidates", candidates), ("targets", targets)):
-        # a whole request in another unit (mm sent to a node in metres): refused, not planned
-        text = None if points is None else unit_mismatch(
-            state.model.working, points, hull.simplices(points) >= 0, what, what)
-        if text:
-            raise ValueError(f"{text}; the node works in metres")
+    # a whole request in another unit (mm sent to a node in metres): refused, not planned
+    mismatch = point_sets_unit_mismatch(state.model.working, state.model.interpolator.hull,
+                                        (("candidates", candidates), ("targets", targets)))
+    if mismatch:
+        raise ValueError(f"{mismatch[0]}; the node works in metres")
     if count > MAX_SUGGESTIONS:
         raise ValueError(f"count {count}: at most {MAX_SUGGESTIONS} suggestions per request "
                          f"(each is a step of the plan on the executor); measure them, then "

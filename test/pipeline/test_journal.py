@@ -96,13 +96,18 @@ def test_append_then_load_gives_the_same_records(tmp_path):
     assert json.loads(first)["t"] == "h"
 
 
-def test_torn_last_line_is_skipped_with_a_warning_and_cut_off(tmp_path):
+def journal_of_two(tmp_path):
+    """A closed journal of the first two records; its path."""
     j = Journal(str(tmp_path), HEADER)
     j.load()
     for r in records()[:2]:
         j.append(r)
     j.close()
-    path = tmp_path / JOURNAL_NAME
+    return tmp_path / JOURNAL_NAME
+
+
+def test_torn_last_line_is_skipped_with_a_warning_and_cut_off(tmp_path):
+    path = journal_of_two(tmp_path)
     with open(path, "ab") as f:
         f.write(b'{"t":"m","id":"H9","w":[0.1,0.2')   # a write cut short by SIGKILL
     j2 = Journal(str(tmp_path), HEADER)
@@ -117,12 +122,7 @@ def test_torn_last_line_is_skipped_with_a_warning_and_cut_off(tmp_path):
 def test_a_whole_last_record_without_its_newline_is_kept(tmp_path):
     """A review: a journal whose final newline was lost (a hand edit, `printf %s "$(cat ...)"`)
     had its last, valid record deleted from disk as torn."""
-    j = Journal(str(tmp_path), HEADER)
-    j.load()
-    for r in records()[:2]:
-        j.append(r)
-    j.close()
-    path = tmp_path / JOURNAL_NAME
+    path = journal_of_two(tmp_path)
     path.write_bytes(path.read_bytes()[:-1])
     j2 = Journal(str(tmp_path), HEADER)
     loaded, warnings = j2.load()
@@ -133,6 +133,23 @@ def test_a_whole_last_record_without_its_newline_is_kept(tmp_path):
     j2.append(records()[2])
     j2.close()
     assert Journal(str(tmp_path), HEADER).load() == (records(), [])
+
+
+def test_a_kept_last_record_whose_newline_cannot_be_written_is_cut_off(tmp_path, monkeypatch):
+    path = journal_of_two(tmp_path)
+    whole = path.read_bytes()
+    path.write_bytes(whole[:-1])
+    j = Journal(str(tmp_path), HEADER)
+
+    def refuse(data):
+        raise OSError(errno.ENOSPC, "no space left")
+    monkeypatch.setattr(j, "_write", refuse)
+    loaded, warnings = j.load()
+    assert loaded == records()[:1]
+    assert len(warnings) == 1 and "last record without a newline skipped: the newline could not " \
+        "be added" in warnings[0]
+    assert path.read_bytes() == whole[:whole.rstrip(b"\n").rfind(b"\n") + 1]   # one whole line
+    j.close()
 
 
 def test_corrupt_middle_line_is_skipped(tmp_path):
