@@ -97,20 +97,12 @@ def warn_unit_mismatch(command: str, fiducials: object, targets: object, report:
 
 def warn_blunders(command: str, model: object, unit: str) -> None:
     """One warning line naming the fiducial whose held-out error stands out most
-    (:func:`rbc_registration.core.evaluation.blunders`) and the others over the threshold."""
-    from ..core.evaluation import BLUNDER_FACTOR, blunders
+    (:func:`rbc_registration.core.evaluation.describe_blunders`), if any."""
+    from ..core.evaluation import blunders, describe_blunders
 
-    found = blunders(model)
-    if found:
-        worst = found[0]
-        more = (f"; {len(found) - 1} more over {BLUNDER_FACTOR:g} x ("
-                + ", ".join(b.fiducial_id for b in found[1:6])
-                + (", ..." if len(found) > 6 else "")
-                + "), maybe through it: their held-out predictions use it") if found[1:] else ""
-        warn(command, f"fiducial {worst.fiducial_id}: held-out error {worst.error:.4g} {unit}, "
-                      f"{worst.error / worst.median:.0f} x the median of the fiducials "
-                      f"({worst.median:.4g} {unit}, {worst.method}): a typo or a wrong hole? check "
-                      f"its points first{more}")
+    line = describe_blunders(blunders(model), unit)
+    if line:
+        warn(command, line)
 
 
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -115,3 +115,22 @@ def blunders(model: RbcModel, factor: float = BLUNDER_FACTOR) -> list[Blunder]:
     flagged = np.flatnonzero(err > factor * median)
     return [Blunder(model.ids[k], float(err[k]), median, method)
             for k in flagged[np.argsort(-err[flagged])]]
+
+
+def describe_blunders(found: Sequence[Blunder], unit: str) -> str:
+    """One line naming the fiducial of ``found`` (:func:`blunders`, largest first) whose held-out
+    error stands out most, and the others over the threshold; "" when there are none.
+
+    :param unit: the unit of the points, for the errors (e.g. "mm"; "m" on the ROS side).
+    """
+    if not found:
+        return ""
+    worst = found[0]
+    more = (f"; {len(found) - 1} more over {BLUNDER_FACTOR:g} x ("
+            + ", ".join(b.fiducial_id for b in found[1:6])
+            + (", ..." if len(found) > 6 else "")
+            + "), maybe through it: their held-out predictions use it") if found[1:] else ""
+    return (f"fiducial {worst.fiducial_id}: held-out error {worst.error:.4g} {unit}, "
+            f"{worst.error / worst.median:.0f} x the median of the fiducials "
+            f"({worst.median:.4g} {unit}, {worst.method}): a typo or a wrong hole? check "
+            f"its points first{more}")

@@ -5,8 +5,9 @@ what the status says and from what happened since the last report. Pure Python (
 Levels (issue 10 item 6, issue 9):
 
 - ``ERROR``: no model to answer targets (or the journal cannot be written);
-- ``WARN``: an uncertain decision, measurements rejected since the last report, a stale model
-  (accepted measurements waiting longer than ``stale_after`` seconds to enter it), or a loaded
+- ``WARN``: an uncertain decision, a fiducial whose held-out error stands out (a likely typo or
+  wrong hole), measurements rejected since the last report, a stale model (accepted
+  measurements waiting longer than ``stale_after`` seconds to enter it), or a loaded
   calibration without a live model;
 - ``OK``: a valid model with a confident decision, whether or not it applies corrections.
 """
@@ -46,6 +47,8 @@ class HealthInputs(NamedTuple):
     :ivar journal_error: why the journal cannot be written, empty when it can.
     :ivar calibration: what a loaded calibration file published without a live model is
         (publish-only), empty when none.
+    :ivar model_warning: what to check in the served model (a suspect fiducial), empty when
+        nothing.
     """
 
     model_valid: bool
@@ -58,6 +61,7 @@ class HealthInputs(NamedTuple):
     n_pending: int
     journal_error: str = ""
     calibration: str = ""
+    model_warning: str = ""
 
 
 class HealthMonitor:
@@ -101,6 +105,8 @@ class HealthMonitor:
                                                     + warnings))
             return Health(Level.ERROR, "; ".join([f"no model: {inputs.model_error}"]
                                                  + warnings))
+        if inputs.model_warning:
+            warnings.insert(0, inputs.model_warning)
         if not inputs.confident:
             warnings.insert(0, f"uncertain decision: {inputs.decision_reason}")
         if warnings:

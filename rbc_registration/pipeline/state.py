@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 from ..core.accumulator import FiducialSet
+from ..core.evaluation import blunders, describe_blunders
 from ..core.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
 from .settings import Settings
@@ -16,13 +17,19 @@ from .settings import Settings
 @dataclass(frozen=True)
 class ModelState:
     """What the node serves: the model (or ``None`` with the reason in ``error``), the fiducials
-    and settings it was built from, and when (``stamp_ns``, node clock; 0 = never)."""
+    and settings it was built from, and when (``stamp_ns``, node clock; 0 = never).
+
+    ``warning``: what to check in a model that is served, one line, "" when nothing: a fiducial
+    whose held-out error stands out (:func:`~rbc_registration.core.evaluation.blunders`, a
+    typo'd coordinate or a wrong hole; errors in metres).
+    """
 
     model: Optional[RbcModel]
     fiducials: Optional[FiducialSet]
     settings: Optional[Settings]
     error: str
     stamp_ns: int = 0
+    warning: str = ""
 
     @property
     def n_measurements(self) -> int:
@@ -73,4 +80,5 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
     # The status and the snapshot report every sigma_L (computed on first access, O(J^2)): here,
     # in the recompute thread, rather than on the executor at the first status.
     _ = model.restoration.sigma_l
-    return ModelState(model, fiducials, settings, "", stamp_ns)
+    return ModelState(model, fiducials, settings, "", stamp_ns,
+                      describe_blunders(blunders(model), "m"))

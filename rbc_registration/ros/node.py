@@ -222,9 +222,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         with self._pub_lock:
             if generation != self._generation:
                 return
-            self._state = state
+            previous, self._state = self._state, state
         if state.error:
             self.get_logger().warning(state.error)
+        elif state.warning and state.warning != previous.warning:
+            self.get_logger().warning(state.warning)
         self._publish_model(state, disabled_points, generation)
 
     def _on_worker_error(self, exc: BaseException) -> None:

@@ -6,7 +6,7 @@ snapshot. See msg_docs/README.md for the topics and frames.
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 from rbc_registration_interfaces.msg import RegistrationStatus
 
@@ -93,22 +93,25 @@ class PublishingMixin:
         else:
             self._tf.set(chosen)
 
-    def status(self) -> RegistrationStatus:
-        """The ``RegistrationStatus`` now (what ``~/status`` publishes)."""
-        msg = status_msg(self._state, self._settings, self._ingest.counters(),
+    def status(self, state: Optional[ModelState] = None) -> RegistrationStatus:
+        """The ``RegistrationStatus`` now (what ``~/status`` publishes) of ``state`` (default:
+        the one served)."""
+        state = self._state if state is None else state
+        msg = status_msg(state, self._settings, self._ingest.counters(),
                          self.get_clock().now().to_msg(), self._expected_target_error())
         loaded = self._loaded
-        if loaded is not None and self._state.model is None:
+        if loaded is not None and state.model is None:
             msg.message = "; ".join(filter(None, (loaded.describe(), msg.message)))
         return msg
 
     def _publish_status(self) -> None:
-        status = self.status()
+        state = self._state
+        status = self.status(state)
         loaded = self._loaded
         with self._pub_lock:
             self._health.stale_after = self._settings.stale_after
             health = health_of(status, self._health, self._ingest.journal_error,
-                               loaded.describe() if loaded is not None else "")
+                               loaded.describe() if loaded is not None else "", state.warning)
             self._pub_status.publish(status)
             self._pub_diagnostics.publish(diagnostics_msg(status, self.get_name(),
                                                           status.header.stamp, health))

@@ -55,7 +55,7 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
     msg.interpolation = (state.settings or settings).interpolation
     msg.last_recompute = nanoseconds_to_stamp(state.stamp_ns)
     msg.n_journal_failures = counters.n_journal_failures
-    msg.message = state.error
+    msg.message = state.error or state.warning
     if counters.n_replay_skipped:
         msg.message = "; ".join(filter(None, (
             f"journal replay skipped {counters.n_replay_skipped} corrupt or invalid record(s) "
@@ -98,12 +98,13 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
 
 
 def health_of(status: RegistrationStatus, monitor: HealthMonitor, journal_error: str = "",
-              calibration: str = "") -> Health:
-    """The health (:mod:`rbc_registration.pipeline.health`) of ``status`` at its stamp."""
+              calibration: str = "", model_warning: str = "") -> Health:
+    """The health (:mod:`rbc_registration.pipeline.health`) of ``status`` at its stamp;
+    ``model_warning``: the served state's :attr:`~.ModelState.warning`."""
     return monitor.assess(HealthInputs(
         status.model_valid, status.message, status.decision_confident, status.decision_reason,
         status.n_fiducials, status.decision_method, status.n_rejected, status.n_pending,
-        journal_error, calibration), stamp_to_seconds(status.header.stamp))
+        journal_error, calibration, model_warning), stamp_to_seconds(status.header.stamp))
 
 
 def diagnostics_msg(status: RegistrationStatus, node_name: str, now: Time,

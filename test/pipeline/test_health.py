@@ -37,6 +37,15 @@ def test_warn_uncertain_decision():
     assert h == (Level.WARN, "uncertain decision: rho 1.8")
 
 
+def test_warn_for_a_suspect_fiducial_after_an_uncertain_decision():
+    line = "fiducial H17: held-out error 0.0027 m, 90 x the median ..."
+    h = HealthMonitor(10.0).assess(GOOD._replace(model_warning=line), 0.0)
+    assert h == (Level.WARN, line)
+    h = HealthMonitor(10.0).assess(GOOD._replace(model_warning=line, confident=False,
+                                                 decision_reason="rho 1.8"), 0.0)
+    assert h == (Level.WARN, f"uncertain decision: rho 1.8; {line}")
+
+
 def test_warn_for_rejections_since_the_previous_report_only():
     monitor = HealthMonitor(10.0)
     assert monitor.assess(GOOD._replace(n_rejected=2), 0.0) == (

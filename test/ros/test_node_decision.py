@@ -23,14 +23,14 @@ pytestmark = pytest.mark.ros
 
 class TestDecisionInStatusAndDiagnostics(NodeTestBase):
 
-    def diagnostics(self, node, predicate=lambda s: True, got=None):
+    def diagnostics(self, node, predicate=lambda s: True, got=None):  # also TestGetFiducials
         """The newest /diagnostics status of ``node`` satisfying ``predicate``: among ``got``
         (messages an earlier :meth:`watch` collects and keeps collecting), else from a new
         subscription."""
         name = node.get_name()
         own = got is None
         if own:
-            got, sub = self.watch()
+            got, sub = TestDecisionInStatusAndDiagnostics.watch(self)
 
         def mine():
             return [s for m in got for s in m.status if s.name.startswith(name) and predicate(s)]
@@ -170,6 +170,27 @@ class TestGetFiducials(NodeTestBase):
         assert all(math.isnan(getattr(f, n)) for n in ("correction_norm", "cv_error",
                                                         "cv_error_uncorrected",
                                                         "residual_uncorrected"))
+
+    def test_the_planted_outlier_is_named_in_status_and_diagnostics_until_disabled(self):
+        """As register and evaluate do (core/evaluation.py ``blunders``): a fiducial whose
+        held-out error stands out is a WARN naming it; disabled, the node is OK again."""
+        node = self.make_node()
+        self.stream(node)
+        state = self.recompute(node)
+        planted = self.cell["ids"][self.outlier]
+        assert state.warning.startswith(f"fiducial {planted}: held-out error ")
+        assert " m, " in state.warning and "check its points first" in state.warning
+        assert node.status().message == state.warning
+        d = TestDecisionInStatusAndDiagnostics.diagnostics(
+            self, node, lambda s: s.level != DiagnosticStatus.ERROR)
+        assert d.level == DiagnosticStatus.WARN and d.message.startswith(state.warning)
+        assert self.srv(node, SetFiducialEnabled, "set_fiducial_enabled",
+                        SetFiducialEnabled.Request(fiducial_id=planted, enabled=False)).success
+        state = self.recompute(node)
+        assert state.warning == "" and node.status().message == ""
+        d = TestDecisionInStatusAndDiagnostics.diagnostics(
+            self, node, lambda s: s.level == DiagnosticStatus.OK)
+        assert planted not in d.message
 
 
 class TestRemovedParameter(NodeTestBase):
