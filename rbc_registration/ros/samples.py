@@ -40,6 +40,7 @@ class Latest(NamedTuple):
     msg: PointStamped
     received_ns: int
     paired: bool = False        # recorded already as a stamp pair (point_mode pair)
+    sampled: bool = False       # recorded already by a ~/take_sample
 
 
 class SampleTaker:
@@ -71,6 +72,15 @@ class SampleTaker:
                 if any((p.working.xyz, p.working.stamp_s) == key if stream == WORKING else
                        (p.destination.xyz, p.destination.stamp_s) == key for p in pairs):
                     self._latest[stream] = latest._replace(paired=True)
+
+    def mark_sampled(self, taken: Any) -> None:
+        """A ``~/take_sample`` recorded the working point ``taken`` (the token :meth:`pair`
+        returned): while no newer ``~/working_point`` arrived, another sample would record the
+        same measurement again."""
+        with self._lock:
+            latest = self._latest.get(WORKING)
+            if latest is not None and latest is taken:
+                self._latest[WORKING] = latest._replace(sampled=True)
 
     def _point(self, stream: str, topic: str, settings: Settings, now_ns: int) -> Any:
         latest = self._latest.get(stream)
@@ -109,9 +119,11 @@ class SampleTaker:
         msg.point.x, msg.point.y, msg.point.z = v.x, v.y, v.z
         return msg
 
-    def pair(self, fiducial_id: str, settings: Settings) -> tuple[Optional[PairArgs], str]:
-        """The measurement to record now: ``(PairArgs, "")``, or ``(None, why not)`` naming the
-        missing or stale point."""
+    def pair(self, fiducial_id: str, settings: Settings
+             ) -> tuple[Optional[PairArgs], str, Any]:
+        """The measurement to record now: ``(PairArgs, "", token)``, or ``(None, why not,
+        None)`` naming the missing, stale or already recorded point. Once the pair is recorded,
+        pass ``token`` to :meth:`mark_sampled`."""
         now_ns = self._node.get_clock().now().nanoseconds
         with self._lock:
             latest = self._latest.get(WORKING)
@@ -119,7 +131,12 @@ class SampleTaker:
                 return None, ("the latest ~/working_point is recorded already, paired by stamp "
                               "(point_mode pair): a sample would count it twice (a false "
                               "repeat, sigma too small); send a new point, or use point_mode "
-                              "sample")
+                              "sample"), None
+            if latest is not None and latest.sampled:
+                return None, ("the latest ~/working_point is recorded already, by the previous "
+                              "~/take_sample: a second sample of the same point would be a "
+                              "false repeat (zero scatter, sigma too small); measure the hole "
+                              "again (a new ~/working_point), then take the sample"), None
             working = self._point(WORKING, "~/working_point", settings, now_ns)
             destination = (self._point(DESTINATION, "~/destination_point", settings, now_ns)
                            if settings.sample_destination_source == "topic" else None)
@@ -127,10 +144,10 @@ class SampleTaker:
             destination = self._tf_point(settings)
         errors = [p for p in (working, destination) if isinstance(p, str)]
         if errors:
-            return None, "; ".join(errors)
+            return None, "; ".join(errors), None
         (w, w_frame, stamp), (d, d_frame, _) = (conv.point_stamped_to_tuple(working),
                                                 conv.point_stamped_to_tuple(destination))
-        return PairArgs(fiducial_id or None, w, d, w_frame, d_frame, stamp), ""
+        return PairArgs(fiducial_id or None, w, d, w_frame, d_frame, stamp), "", latest
 
 
 def pair_message(record: Any, args: PairArgs, settings: Settings) -> FiducialPair:

@@ -184,13 +184,14 @@ class ServicesMixin:
 
     def _on_take_sample(self, request: TakeSample.Request,
                         response: TakeSample.Response) -> TakeSample.Response:
-        args, error = self._samples.pair(request.fiducial_id, self._settings)
+        args, error, taken = self._samples.pair(request.fiducial_id, self._settings)
         record = None
         if args is not None:
             record, error = self._ingest.take(args)
         if record is None:
             response.success, response.message = False, f"no sample taken: {error}"
             return response
+        self._samples.mark_sampled(taken)   # no second sample of the same measurement
         if self._settings.point_mode == "pair":   # not again when its stamp partner arrives
             self._ingest.discard_point(WORKING, args.working_xyz, args.stamp_s)
         self._worker.notify()

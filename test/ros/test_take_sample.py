@@ -67,8 +67,18 @@ class TestTakeSample(NodeTestBase):
         assert node.status().n_measurements == 1
         record = json.loads((tmp_path / "journal.jsonl").read_text().splitlines()[-1])
         assert "H00" in json.dumps(record)
-        # The same latest points again: a repeat of H00 (n = 2 gives sigma), then by proximity.
+        # The same latest working point again would be a false repeat (zero scatter: sigma 0,
+        # rho inf): refused, with or without an id, until a new point arrives.
+        for fiducial_id in ("H00", ""):
+            r = self.take(node, fiducial_id)
+            assert not r.success and "recorded already, by the previous ~/take_sample" in \
+                r.message and "measure the hole again" in r.message, r.message
+        assert node.status().n_measurements == 1
+        # A new measurement of the hole (a new message; the destination point kept): a repeat
+        # of H00 (n = 2 gives sigma), then once more by proximity.
+        self.send(node, "working_point", cell["working"][0] + 1e-5, "tracker")
         assert self.take(node, "H00").success
+        self.send(node, "working_point", cell["working"][0] - 1e-5, "tracker")
         r = self.take(node)
         assert r.success and r.pair.fiducial_id == "H00" and "proximity" in r.message
         assert node.status().n_measurements == 3
