@@ -64,3 +64,4 @@ class ParametersMixin:
                 self._publish_tf()
         self.get_logger().info(f"parameters changed: {changes}")
         self._worker.notify()
+        self._worker.wake()   # a pending batch is due by the new debounce_period

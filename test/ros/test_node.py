@@ -233,6 +233,17 @@ class TestLiveRegistration(NodeTestBase):
         assert len(builds) <= 3   # not one per message (144 messages)
         assert node.status().n_pending == 0
 
+    def test_a_shorter_debounce_period_applies_to_the_pending_batch(self):
+        """A review: with debounce_period 30 s and one pair pending, setting 0.05 s still left
+        the pair out of the model for 28 s (the sleeping thread was not woken)."""
+        node = self.make_node(debounce_period=30.0)
+        self.stream(node)
+        assert node.state.model is None and node.status().n_pending == len(self.cell["fid"])
+        assert node.set_parameters([Parameter("debounce_period", value=0.05)])[0].successful
+        # before the fix it came after the old period (28 s), well beyond this wait
+        wait_for(lambda: node.state.model is not None, timeout=20.0, what="the pending batch")
+        assert node.status().n_pending == 0
+
 
 class TestBadInput(NodeTestBase):
 
