@@ -5,7 +5,8 @@ file operations (no rclpy).
 name, fsync, rename, fsync of the directory) by one writer at a time (a lock per path): a reader
 sees the old or the new file, never a mix, and concurrent writers (``~/save`` and the recompute
 thread) never share or remove each other's temporary file. The node never
-loads it (the journal, :mod:`rbc_registration.pipeline.journal`, is the source of truth);
+loads a model from it (the journal, :mod:`rbc_registration.pipeline.journal`, is the source of
+truth; at start it only compares the snapshot's settings with its own, :func:`changed_settings`);
 :func:`tidy_state_dir` removes temporary files of an interrupted write and moves an unreadable
 snapshot aside before the node starts.
 """
@@ -135,6 +136,38 @@ def tidy_state_dir(state_dir: str) -> list[str]:
             warnings.append(f"{path} is not a valid snapshot ({exc}): ignored and moved aside "
                             f"as {aside}; the model is rebuilt from the journal")
     return warnings
+
+
+#: Settings not compared by :func:`changed_settings` (a path, resolved differently per start).
+_NOT_COMPARED = frozenset({"state_dir"})
+
+
+def changed_settings(state_dir: str, settings: Any) -> str:
+    """One line naming the settings of ``state_dir``'s snapshot (the last model of the previous
+    run) that differ from ``settings`` (this start's), or "" (no snapshot, none differ).
+
+    Parameters changed at runtime are not kept across a restart (ROS parameters come from the
+    start-up ones: ``params_file``, launch arguments): the journal gives back every measurement,
+    but the model is rebuilt with this start's parameters, so its answers can differ.
+    """
+    path = snapshot_path(state_dir)
+    if not os.path.lexists(path):
+        return ""
+    try:
+        before = read_snapshot(path).get("settings")
+    except (ValueError, OSError):
+        return ""            # tidy_state_dir said so and moved it aside
+    if not isinstance(before, dict):
+        return ""
+    now = json_clean({k: getattr(settings, k) for k in settings.__dataclass_fields__})
+    diff = [f"{k} {before[k]!r} (now {now[k]!r})" for k in now
+            if k in before and k not in _NOT_COMPARED and before[k] != now[k]]
+    if not diff:
+        return ""
+    return (f"the last model ({path}) was built with other parameters than this start's: "
+            f"{', '.join(diff)}; the model is rebuilt from the journal with this start's "
+            f"(parameters set at runtime are not kept across a restart: put them in the "
+            f"params_file to keep them)")
 
 
 def snapshot_path(state_dir: str) -> str:

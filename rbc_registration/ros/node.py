@@ -35,7 +35,7 @@ from ..pipeline.files import StateDirLock
 from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
 from ..pipeline.journal import Journal
-from ..pipeline.snapshot import tidy_state_dir, write_atomic
+from ..pipeline.snapshot import changed_settings, tidy_state_dir, write_atomic
 from ..pipeline.state import EMPTY_STATE, ModelState, build_state, warm_start
 from ..pipeline.worker import LatestWriter, RecomputeWorker
 from ..runtime import freeze_startup_objects
@@ -118,8 +118,9 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if s.state_dir:
             # One writer per state_dir, for the node's life: taken before anything is touched.
             self._state_lock = StateDirLock(s.state_dir)
-            for warning in tidy_state_dir(s.state_dir):
-                self.get_logger().warning(warning)
+            for warning in tidy_state_dir(s.state_dir) + [changed_settings(s.state_dir, s)]:
+                if warning:
+                    self.get_logger().warning(warning)
             journal = Journal(s.state_dir, {"working_frame": s.working_frame,
                                                         "destination_frame": s.destination_frame,
                                                         "dimension": s.dimension},
@@ -259,7 +260,13 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
     parameter is invalid, ``state_dir`` is in use by another node, is not a usable directory,
     or holds a journal that is not a regular file or belongs to another setup.
     """
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except RuntimeError as exc:  # rcl's error, e.g. a malformed --ros-args rule: one line
+        hint = (" (an empty value is written -p name:=\"''\")"
+                if "parameter override rule" in str(exc) else "")
+        get_logger("registration_node").fatal(f"cannot start: {exc}{hint}")
+        raise SystemExit(1) from None
     node: Optional[RegistrationNode] = None
     code = 0
     try:

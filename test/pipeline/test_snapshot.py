@@ -135,3 +135,25 @@ def test_parallel_writers_and_a_reader_never_fail_or_see_a_partial_file(tmp_path
     final = open(path).read()
     assert final in {text for w in texts for text in texts[w]}
     assert sorted(os.listdir(tmp_path)) == [SNAPSHOT_NAME]
+
+
+def test_changed_settings_names_what_differs_from_the_last_snapshot(tmp_path):
+    """Parameters set at runtime are not kept across a restart: the start says which."""
+    from rbc_registration.pipeline.settings import Settings
+    from rbc_registration.pipeline.snapshot import changed_settings
+
+    start = Settings.from_mapping({"state_dir": str(tmp_path)})
+    assert changed_settings(str(tmp_path), start) == ""                     # no snapshot
+    runtime = start.replace(decision="off", outlier_distance=0.0)
+    data = {"format": SNAPSHOT_FORMAT,
+            "settings": {k: getattr(runtime, k) for k in runtime.__dataclass_fields__}}
+    (tmp_path / SNAPSHOT_NAME).write_text(json.dumps(data))
+    line = changed_settings(str(tmp_path), start)
+    assert "decision 'off' (now 'cv')" in line and "outlier_distance 0.0 (now " in line
+    assert "state_dir" not in line and "params_file" in line
+    assert changed_settings(str(tmp_path), runtime) == ""
+    data["settings"]["state_dir"] = "/elsewhere"                              # not compared
+    (tmp_path / SNAPSHOT_NAME).write_text(json.dumps(data))
+    assert changed_settings(str(tmp_path), runtime) == ""
+    (tmp_path / SNAPSHOT_NAME).write_text("{cut")                            # tidy's business
+    assert changed_settings(str(tmp_path), runtime) == ""

@@ -3,6 +3,7 @@ one FATAL line (no traceback), and ~/recompute of thousands of fiducials while a
 measures ~/correct_target latency (severe 3). Each test failed on the code before the fix."""
 
 import os
+import signal
 import threading
 import time
 
@@ -12,6 +13,8 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("rbc_registration_interfaces.msg")
 
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
+from rcl_interfaces.srv import SetParameters  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from rbc_registration.core.accumulator import Measurement  # noqa: E402
@@ -69,6 +72,46 @@ class TestOneWriterPerStateDir(RosTestBase):
         assert [r.fiducial_id for r in records] == [f"H{f:02d}" for f in cell["fid"]]
 
 
+class TestRuntimeParametersAcrossARestart(RosTestBase):
+
+    def test_a_restart_names_the_parameters_set_at_runtime_it_does_not_keep(self, tmp_path):
+        """A review: decision 'off' set at runtime, kill -9, restart: the decision was 'cv'
+        again and the answers moved 0.57 mm, the log said only 'restored 80 measurements'.
+        ROS parameters come from the start-up ones; the restart now names what changed."""
+        state, cell = tmp_path / "state", make_cell(seed=3, repeats=1)
+        n = len(cell["fid"])
+        proc = start_test_node("rbc_rt", state, log=open(tmp_path / "one.log", "w"))
+        try:
+            statuses, sub = status_sub(self.ros, "rbc_rt")
+            pub = self.ros.client.create_publisher(FiducialPair, "/rbc_rt/fiducial_pairs", 1000)
+            wait_for(lambda: pub.get_subscription_count() > 0, 30, what="rbc_rt")
+            for k in range(n):
+                pub.publish(pair_msg(cell, k, stamp_s=100.0 + k))
+            off = Parameter(name="decision", value=ParameterValue(
+                type=ParameterType.PARAMETER_STRING, string_value="off"))
+            r = self.ros.call(SetParameters, "/rbc_rt/set_parameters",
+                              SetParameters.Request(parameters=[off]), 30)
+            assert r.results[0].successful
+            wait_for(lambda: statuses and statuses[-1].decision_mode == "off"
+                     and statuses[-1].n_measurements == n and statuses[-1].n_pending == 0, 60,
+                     what="the model with decision off")
+            snap = state / "calibration.json"
+            wait_for(lambda: snap.exists() and '"decision": "off"' in snap.read_text(), 30,
+                     what="its snapshot")
+            self.ros.client.destroy_subscription(sub)
+        finally:
+            stop_process(proc, signal.SIGKILL)
+        proc = start_test_node("rbc_rt", state, log=open(tmp_path / "two.log", "w"))
+        try:
+            log = tmp_path / "two.log"
+            wait_for(lambda: "restored" in log.read_text(), 60, what="the restart")
+            lines = [line for line in log.read_text().splitlines() if "the last model" in line]
+            assert len(lines) == 1, log.read_text()
+            assert "decision 'off' (now 'cv')" in lines[0] and "params_file" in lines[0]
+        finally:
+            assert stop_process(proc) == 0
+
+
 @pytest.mark.parametrize("case", ["state-dir-is-a-file", "journal-is-a-directory",
                                   "journal-is-a-symlink", "journal-of-another-dimension",
                                   "state-dir-under-a-file"])
@@ -103,6 +146,18 @@ def test_start_up_failures_are_one_fatal_line(tmp_path, case):
     assert "AttributeError" not in text
     if case == "journal-is-a-symlink":
         assert (tmp_path / "victim").read_text() == "precious\n"
+
+
+def test_a_malformed_ros_argument_is_one_fatal_line(tmp_path):
+    """A review: ``-p state_dir:=`` (meant as "empty") ended in an rcl traceback."""
+    proc = start_test_node("rbc_fatal_arg", None, log=open(tmp_path / "node.log", "w"),
+                           ros_args=["-p", "state_dir:="])
+    try:
+        assert proc.wait(timeout=60) == 1
+    finally:
+        stop_process(proc)
+    lines, text = fatal_lines(tmp_path / "node.log")
+    assert len(lines) == 1 and "state_dir:=" in lines[0] and "-p name:=\"''\"" in lines[0], text
 
 
 class TestRecomputeDoesNotBlock(RosTestBase):
