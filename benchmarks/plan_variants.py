@@ -53,7 +53,7 @@ from plan_cells import Cell, farthest_point_order  # noqa: E402
 from rbc_registration.core.expected_error import (BiasPosterior, ExpectedErrorModel,  # noqa: E402
                                                   RigidFitError, fiducial_covariance,
                                                   pooled_median, target_noise)
-from rbc_registration.core.gauss_newton import rigid_motion_basis  # noqa: E402
+from rbc_registration.core.gauss_newton import rigid_motion_basis, rigid_motion_columns  # noqa: E402
 from rbc_registration.core.gp_fit import matern52  # noqa: E402
 from rbc_registration.core.model_planner import (decisive_candidate,  # noqa: E402
                                                  error_model_from, held_back_by_decision,
@@ -104,26 +104,6 @@ def expected_after(x, c, pts, components, axis_std) -> np.ndarray:
     return e
 
 
-def raw_rigid_basis(points, centre) -> np.ndarray:
-    """(dK, m) infinitesimal rigid motions (translations, rotations about ``centre``) at
-    ``points``, flattened row-major as :func:`rigid_motion_basis`, not orthonormalised."""
-    k, d = points.shape
-    c = points - centre
-    cols = []
-    for a in range(d):
-        t = np.zeros((k, d))
-        t[:, a] = 1.0
-        cols.append(t.ravel())
-    if d == 2:
-        cols.append(np.column_stack([-c[:, 1], c[:, 0]]).ravel())
-    else:
-        for a in range(3):
-            omega = np.zeros(3)
-            omega[a] = 1.0
-            cols.append(np.cross(omega, c).ravel())
-    return np.column_stack(cols)
-
-
 def projected_expected_sq(x, pts, s, length, axis_var) -> np.ndarray:
     """(K,) expected squared TRE at ``pts`` of the corrected registration, the restoration's
     rigid-motion projection included (first order, exact in the Gaussian model).
@@ -142,8 +122,8 @@ def projected_expected_sq(x, pts, s, length, axis_var) -> np.ndarray:
     for a in range(d):
         wa = np.linalg.solve(kff + (axis_var[a] + 1e-10 * s * s) * np.eye(j), kfp).T  # (K, J)
         w[a::d, a::d] = wa
-    r = raw_rigid_basis(x, centre)
-    rt = raw_rigid_basis(pts, centre)
+    r = rigid_motion_columns(x, centre)
+    rt = rigid_motion_columns(pts, centre)
     fit = np.linalg.solve(r.T @ r, r.T)                       # theta = fit @ z
     proj = np.eye(j * d) - r @ fit
     amat = rt @ fit + w @ proj                                # (dK, dJ)

@@ -25,14 +25,17 @@ SOLVERS = ("auto", "direct", "cg")
 DIRECT_MAX_FIDUCIALS = 3000
 
 
-def rigid_motion_basis(points: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Orthonormal basis (dJ, m) of the infinitesimal rigid motions of ``points`` (J, d).
+def rigid_motion_columns(points: NDArray[np.float64], centre: NDArray[np.float64]
+                         ) -> NDArray[np.float64]:
+    """(dJ, m) infinitesimal rigid motions at ``points`` (J, d), not orthonormalised.
 
-    m = 3 in 2D (2 translations, 1 rotation), 6 in 3D. Vectors are flattened row-major
-    (x1, y1, ...).
+    Columns: the d translations (unit length per point), then the rotations about ``centre``
+    (one in 2D, three in 3D; displacement omega x (p - centre)). Vectors are flattened row-major
+    (x1, y1, ...); m = 3 in 2D, 6 in 3D. Units: translations dimensionless, rotations in the
+    points' length unit per radian.
     """
     j, d = points.shape
-    c = points - points.mean(axis=0)
+    c = points - centre
     cols = []
     for k in range(d):
         t = np.zeros((j, d))
@@ -45,7 +48,16 @@ def rigid_motion_basis(points: NDArray[np.float64]) -> NDArray[np.float64]:
             omega = np.zeros(3)
             omega[k] = 1.0
             cols.append(np.cross(omega, c).ravel())
-    q, _ = np.linalg.qr(np.column_stack(cols))
+    return np.column_stack(cols)
+
+
+def rigid_motion_basis(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Orthonormal basis (dJ, m) of the infinitesimal rigid motions of ``points`` (J, d).
+
+    m = 3 in 2D (2 translations, 1 rotation), 6 in 3D. Vectors are flattened row-major
+    (x1, y1, ...).
+    """
+    q, _ = np.linalg.qr(rigid_motion_columns(points, points.mean(axis=0)))
     return q
 
 
