@@ -115,9 +115,22 @@ def tidy_state_dir(state_dir: str) -> list[str]:
 
     :return: one warning per file removed or moved.
     """
+    return _tidy(state_dir)[0]
+
+
+def start_warnings(state_dir: str, settings: Any) -> list[str]:
+    """The warnings of a start, the snapshot read once: :func:`tidy_state_dir`'s, then
+    :func:`changed_settings`' line if any settings differ."""
+    warnings, snapshot = _tidy(state_dir)
+    line = _settings_diff(snapshot, settings, snapshot_path(state_dir))
+    return warnings + ([line] if line else [])
+
+
+def _tidy(state_dir: str) -> tuple[list[str], dict[str, Any] | None]:
+    """:func:`tidy_state_dir`'s warnings and the snapshot it read (None: none, or moved aside)."""
     directory = os.path.abspath(os.path.expanduser(state_dir))
     if not os.path.isdir(directory):
-        return []
+        return [], None
     warnings = []
     for name in sorted(os.listdir(directory)):
         if name.startswith(f"{SNAPSHOT_NAME}.tmp."):
@@ -125,17 +138,18 @@ def tidy_state_dir(state_dir: str) -> list[str]:
             warnings.append(f"removed {name}: a snapshot write was interrupted (ignored; the "
                             f"model is rebuilt from the journal)")
     path = os.path.join(directory, SNAPSHOT_NAME)
+    snapshot = None
     if os.path.lexists(path):
         try:
             check_regular(path)
-            read_snapshot(path)
+            snapshot = read_snapshot(path)
         except (ValueError, OSError) as exc:
             stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
             aside = f"{path}.corrupt.{stamp}.{time.time_ns() % 10**9:09d}.bak"
             os.replace(path, aside)
             warnings.append(f"{path} is not a valid snapshot ({exc}): ignored and moved aside "
                             f"as {aside}; the model is rebuilt from the journal")
-    return warnings
+    return warnings, snapshot
 
 
 #: Settings not compared by :func:`changed_settings` (a path, resolved differently per start).
@@ -154,9 +168,15 @@ def changed_settings(state_dir: str, settings: Any) -> str:
     if not os.path.lexists(path):
         return ""
     try:
-        before = read_snapshot(path).get("settings")
+        snapshot = read_snapshot(path)
     except (ValueError, OSError):
-        return ""            # tidy_state_dir said so and moved it aside
+        return ""            # tidy_state_dir says so and moves it aside
+    return _settings_diff(snapshot, settings, path)
+
+
+def _settings_diff(snapshot: dict[str, Any] | None, settings: Any, path: str) -> str:
+    """:func:`changed_settings`' line for a snapshot already read (None: no snapshot)."""
+    before = None if snapshot is None else snapshot.get("settings")
     if not isinstance(before, dict):
         return ""
     now = json_clean({k: getattr(settings, k) for k in settings.__dataclass_fields__})

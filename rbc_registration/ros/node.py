@@ -35,7 +35,7 @@ from ..pipeline.files import StateDirLock
 from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
 from ..pipeline.journal import Journal
-from ..pipeline.snapshot import changed_settings, tidy_state_dir, write_atomic
+from ..pipeline.snapshot import start_warnings, write_atomic
 from ..pipeline.state import EMPTY_STATE, ModelState, build_state, warm_start
 from ..pipeline.worker import LatestWriter, RecomputeWorker
 from ..runtime import freeze_startup_objects
@@ -118,9 +118,8 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if s.state_dir:
             # One writer per state_dir, for the node's life: taken before anything is touched.
             self._state_lock = StateDirLock(s.state_dir)
-            for warning in tidy_state_dir(s.state_dir) + [changed_settings(s.state_dir, s)]:
-                if warning:
-                    self.get_logger().warning(warning)
+            for warning in start_warnings(s.state_dir, s):
+                self.get_logger().warning(warning)
             journal = Journal(s.state_dir, {"working_frame": s.working_frame,
                                                         "destination_frame": s.destination_frame,
                                                         "dimension": s.dimension},

@@ -157,3 +157,28 @@ def test_changed_settings_names_what_differs_from_the_last_snapshot(tmp_path):
     assert changed_settings(str(tmp_path), runtime) == ""
     (tmp_path / SNAPSHOT_NAME).write_text("{cut")                            # tidy's business
     assert changed_settings(str(tmp_path), runtime) == ""
+
+
+
+def test_start_warnings_read_the_snapshot_once_and_say_what_tidy_and_changed_settings_say(
+        tmp_path, monkeypatch):
+    from rbc_registration.pipeline.settings import Settings
+    from rbc_registration.pipeline.snapshot import changed_settings, start_warnings
+
+    start = Settings.from_mapping({"state_dir": str(tmp_path)})
+    assert start_warnings(str(tmp_path), start) == []                       # nothing there
+    runtime = start.replace(decision="off")
+    data = {"format": SNAPSHOT_FORMAT,
+            "settings": {k: getattr(runtime, k) for k in runtime.__dataclass_fields__}}
+    (tmp_path / SNAPSHOT_NAME).write_text(json.dumps(data))
+    (tmp_path / f"{SNAPSHOT_NAME}.tmp.1").write_text("half")
+    expected = changed_settings(str(tmp_path), start)
+    reads = []
+    monkeypatch.setattr(snapshot, "read_snapshot", lambda p: reads.append(p) or read_snapshot(p))
+    warnings = start_warnings(str(tmp_path), start)
+    assert len(reads) == 1
+    assert warnings[0].startswith(f"removed {SNAPSHOT_NAME}.tmp.1")
+    assert warnings[1:] == [expected] and "decision 'off' (now 'cv')" in expected
+    (tmp_path / SNAPSHOT_NAME).write_text("{cut")                            # moved aside, once
+    warnings = start_warnings(str(tmp_path), start)
+    assert len(warnings) == 1 and "not a valid snapshot" in warnings[0]
