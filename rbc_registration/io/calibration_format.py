@@ -17,7 +17,10 @@ from typing import Any, Optional, Sequence
 import yaml
 
 FORMAT = "rbc_registration_calibration"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Versions this reader reads: 1 had one ``expected_tre`` (the decision's figure, read as
+#: ``expected_tre_with_corrections``; ``expected_tre_rigid`` then unknown).
+READABLE_VERSIONS = (1, 2)
 UNITS = "m"
 MAX_TEXT = 1000  # characters of a frame id, mode, reason or version string
 
@@ -26,7 +29,12 @@ VECTOR_KEYS = {"translation": ("x", "y", "z"), "rotation": ("x", "y", "z", "w")}
 DECISION_KEYS = ("mode", "method", "apply", "reason")
 KEYS = ("format", "format_version", "parent_frame", "child_frame", "dimension", "units",
         "registration", "translation", "rotation", "fre_rms", "decision", "sigma",
-        "sigma_axis", "sigma_L", "expected_tre", "n_fiducials", "created", "package_version")
+        "sigma_axis", "sigma_L", "expected_tre_rigid", "expected_tre_with_corrections",
+        "n_fiducials", "created", "package_version")
+#: The keys of a version 1 file.
+KEYS_V1 = ("format", "format_version", "parent_frame", "child_frame", "dimension", "units",
+           "registration", "translation", "rotation", "fre_rms", "decision", "sigma",
+           "sigma_axis", "sigma_L", "expected_tre", "n_fiducials", "created", "package_version")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,10 +210,16 @@ def from_mapping(data: Any) -> dict[str, Any]:
     if isinstance(data, dict) and data.get("format") != FORMAT:
         got = "missing" if "format" not in data else f"got {_quote(data['format'])}"
         raise ValueError(f"format: must be {FORMAT!r} (not a calibration file?), {got}")
-    data = _mapping("", data, KEYS)
-    if check_int("format_version", data["format_version"], minimum=1) != FORMAT_VERSION:
-        raise ValueError(f"format_version: {data['format_version']} is not supported (this "
-                         f"reader knows version {FORMAT_VERSION})")
+    version = None
+    if isinstance(data, dict) and "format_version" in data:
+        version = check_int("format_version", data["format_version"], minimum=1)
+    if version is not None and version not in READABLE_VERSIONS:
+        raise ValueError(f"format_version: {version} is not supported (this reader knows "
+                         f"versions {', '.join(map(str, READABLE_VERSIONS))})")
+    data = _mapping("", data, KEYS_V1 if version == 1 else KEYS)
+    if version == 1:   # its expected_tre was the decision's figure (docs/CALIBRATION.md)
+        data = {**data, "expected_tre_rigid": None,
+                "expected_tre_with_corrections": data["expected_tre"]}
     if data["units"] != UNITS:
         raise ValueError(f"units: must be {UNITS!r} (all lengths are metres), got "
                          f"{_quote(data['units'])}")
