@@ -444,3 +444,46 @@ def test_a_version_1_file_is_read_its_expected_tre_as_the_decision_s(tmp_path):
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     with pytest.raises(ValueError, match="expected_tre_rigid: unknown field"):
         read_calibration(str(path))
+
+
+@pytest.mark.parametrize("extra, message", [
+    ("? [a, b]\n: 1\n", "a key must be a name, got a list"),
+    ("colour: {[1, 2]: x}\n", "a key must be a name, got a list"),
+    ("? {a: 1}\n: 1\n", "a key must be a name, got a mapping"),
+])
+def test_a_key_that_is_a_list_or_a_mapping_is_one_line(tmp_path, extra, message):
+    """A review: such a key was a TypeError traceback (unhashable type: 'list')."""
+    path = tmp_path / "cal.yaml"
+    write_calibration(str(path), make())
+    path.write_text(path.read_text() + extra)
+    with pytest.raises(ValueError) as info:
+        read_calibration(str(path))
+    text = str(info.value)
+    assert text.startswith(f"{path}: not valid YAML at line ") and text.endswith(message), text
+    assert "\n" not in text
+
+
+@pytest.mark.parametrize("field, written, message", [
+    ("apply", "yes", "apply: yes is read by YAML 1.1 as true: write true or false for a "
+                     "boolean, or quote a string: apply: 'yes'"),
+    ("apply", "off", "apply: off is read by YAML 1.1 as false"),
+    ("mode", "off", "mode: off is read by YAML 1.1 as false: write true or false for a boolean, "
+                    "or quote a string: mode: 'off'"),
+    ("mode", "On", "mode: On is read by YAML 1.1 as true"),
+])
+def test_yaml_1_1_booleans_other_than_true_and_false_are_refused(tmp_path, field, written,
+                                                                  message):
+    """A review: ``apply: yes`` was accepted as true (docs/CALIBRATION.md says it is refused),
+    and ``mode: off`` (read as false) got no hint to quote it."""
+    path = tmp_path / "cal.yaml"
+    write_calibration(str(path), make(decision=Decision("on", "paper", True, "")))
+    text = path.read_text()
+    old = "apply: true" if field == "apply" else "mode: 'on'"   # the writer quotes 'on'
+    assert old in text
+    path.write_text(text.replace(old, f"{field}: {written}"))
+    with pytest.raises(ValueError) as info:
+        read_calibration(str(path))
+    assert str(info.value).startswith(f"{path}: not valid YAML at line ") and message in str(
+        info.value), info.value
+    path.write_text(text.replace(old, f"{field}: 'off'" if field == "mode" else old))
+    assert read_calibration(str(path)).decision.mode == ("off" if field == "mode" else "on")
