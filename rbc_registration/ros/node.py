@@ -169,8 +169,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if self._loaded is not None:  # publish what was registered before, until a live model
             transform = saved.calibration_transform(self._loaded.calibration,
                                                     self.get_clock().now().to_msg())
+            # on the topic of the file's registration, so each topic keeps its meaning when the
+            # live model replaces the file; /tf_static holds it whichever tf_broadcast chooses
+            uncorrected = self._loaded.calibration.registration == "uncorrected"
             with self._pub_lock:
-                self._pub_transform.publish(transform)
+                (self._pub_transform_u if uncorrected else self._pub_transform).publish(transform)
                 self._tf_transforms = dict.fromkeys(("corrected", "uncorrected"), transform)
                 self._publish_tf()
             self.get_logger().info(self._loaded.describe())
