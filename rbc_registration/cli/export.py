@@ -26,21 +26,26 @@ def add_parser(sub: Any) -> None:
                      help="the calibration file to write (default calibration.yaml)")
     exp.add_argument("--registration", choices=("corrected", "uncorrected"), default="corrected",
                      help="which registration of the model (default corrected)")
-    exp.add_argument("--parent-frame", help="destination frame (default: the snapshot's; a "
-                                            "report: world)")
-    exp.add_argument("--child-frame", help="working frame (default: the snapshot's; a report: "
-                                           "tracker)")
+    exp.add_argument("--parent-frame", help="destination frame (default: the snapshot's or an "
+                                            "evaluate report's; a register report: world, "
+                                            "with a warning)")
+    exp.add_argument("--child-frame", help="working frame (default: the snapshot's or an "
+                                           "evaluate report's; a register report: tracker, "
+                                           "with a warning)")
     exp.add_argument("--unit", choices=("m", "mm"),
-                     help="length unit of a report (default: its 'unit'); the file is in metres")
+                     help="length unit of a source that records none; a report's 'unit' (a "
+                          "snapshot: metres) is used, and a different --unit is refused; the "
+                          "file is in metres")
     exp.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Write the YAML, print the static_transform_publisher line and the launch snippet."""
     import json
+    import sys
 
-    from ..io.calibration import (launch_snippet, static_transform_publisher_command,
-                                  write_calibration)
+    from ..io.calibration import (expected_errors, launch_snippet,
+                                  static_transform_publisher_command, write_calibration)
     from ..io.calibration_model import calibration_from_document
     from ..pipeline.files import check_input_file
 
@@ -56,11 +61,14 @@ def run(args: argparse.Namespace) -> int:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{where}: not valid JSON: {exc}") from None
-    cal = calibration_from_document(data, where, args.registration,
-                                    parent_frame=args.parent_frame,
-                                    child_frame=args.child_frame, unit=args.unit, mtime=mtime)
+    cal = calibration_from_document(
+        data, where, args.registration, parent_frame=args.parent_frame,
+        child_frame=args.child_frame, unit=args.unit, mtime=mtime,
+        note=lambda line: print(f"rbc-registration export: warning: {terminal(line)}",
+                                file=sys.stderr))
     write_calibration(str(args.out), cal)
     print(f"wrote {terminal(args.out)}")
+    print(expected_errors(cal))
     print(static_transform_publisher_command(cal))
     print()
     print(launch_snippet(cal), end="")

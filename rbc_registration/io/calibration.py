@@ -3,7 +3,8 @@
 A :class:`Calibration` is the transform ``destination ≈ R @ working + t`` as tf sees it: the
 pose of the **child** (working) frame in the **parent** (destination) frame, translation in
 metres and rotation as a unit quaternion ``(x, y, z, w)`` (REP 103, tf2's order), with the
-quality figures it was built with (the decision, σ, σ_L, expected TRE, fiducial count). 2D
+quality figures it was built with (the decision, σ, σ_L, the expected TRE of the transform
+alone and with the decision's corrections, fiducial count). 2D
 models are rotations about z with zero z translation. The file format is documented in
 docs/CALIBRATION.md. No rclpy: numpy, scipy, PyYAML and the standard library only.
 """
@@ -32,6 +33,7 @@ from . import calibration_format as fields
 from .calibration_format import FORMAT, FORMAT_VERSION, Decision
 
 __all__ = ["Calibration", "Decision", "FORMAT", "FORMAT_VERSION", "MAX_FILE_BYTES",
+           "expected_errors",
            "ORTHONORMAL_TOLERANCE", "QUATERNION_TOLERANCE", "REGISTRATIONS",
            "calibration_from_registration", "launch_snippet", "matrix_from_quaternion",
            "package_version", "quaternion_from_matrix", "read_calibration",
@@ -63,7 +65,12 @@ class Calibration:
     :ivar sigma: noise σ of one working-frame measurement, RMS over all axes [m]; None: unknown.
     :ivar sigma_axis: the same per axis, σ / √dimension [m]; None exactly when ``sigma`` is.
     :ivar sigma_l: σ_L before and after each restoration step (eq. 7) [m].
-    :ivar expected_tre: expected target registration error of the decision [m]; None: unknown.
+    :ivar expected_tre_rigid: expected target registration error of the transform alone, no
+        corrections: the uncorrected registration's cross-validated median error [m]; None: not
+        estimated (docs/CALIBRATION.md).
+    :ivar expected_tre_with_corrections: expected target registration error of the points the
+        decision serves, with ``decision.method``'s corrections (which need the model's
+        fiducials, not in this file): its cross-validated median [m]; None: not estimated.
     :ivar n_fiducials: enabled fiducials the model was built from.
     :ivar created: when it was built, ISO 8601 in UTC (``2025-06-01T12:00:00.000000Z``).
     :ivar package_version: the rbc_registration version that built it.
@@ -81,7 +88,8 @@ class Calibration:
     sigma: Optional[float]
     sigma_axis: Optional[float]
     sigma_l: tuple[float, ...]
-    expected_tre: Optional[float]
+    expected_tre_rigid: Optional[float]
+    expected_tre_with_corrections: Optional[float]
     n_fiducials: int
     created: str
     package_version: str
@@ -124,7 +132,9 @@ class Calibration:
         object.__setattr__(self, "sigma_l", tuple(
             fields.check_length(f"sigma_L[{k}]", v) for k, v in
             enumerate(fields.sequence("sigma_L", self.sigma_l))))
-        fields.optional_length("expected_tre", self.expected_tre)
+        fields.optional_length("expected_tre_rigid", self.expected_tre_rigid)
+        fields.optional_length("expected_tre_with_corrections",
+                               self.expected_tre_with_corrections)
         fields.check_int("n_fiducials", self.n_fiducials, minimum=self.dimension)
         object.__setattr__(self, "created", fields.utc_time("created", self.created))
         fields.check_text("package_version", self.package_version)
@@ -161,7 +171,8 @@ class Calibration:
 def calibration_from_registration(
         rotation: ArrayLike, translation: ArrayLike, *, parent_frame: str, child_frame: str,
         registration: str, fre_rms: float, decision: Decision, sigma: Optional[float],
-        sigma_l: ArrayLike, expected_tre: Optional[float], n_fiducials: int,
+        sigma_l: ArrayLike, expected_tre_rigid: Optional[float],
+        expected_tre_with_corrections: Optional[float], n_fiducials: int,
         clock: Callable[[], float] = time.time,
         version: Optional[str] = None) -> Calibration:
     """A :class:`Calibration` of the registration ``destination ≈ rotation @ working +
@@ -192,7 +203,9 @@ def calibration_from_registration(
         rotation=quaternion_from_matrix(r), fre_rms=float(fre_rms), decision=decision,
         sigma=None if sigma is None else float(sigma), sigma_axis=sigma_axis,
         sigma_l=tuple(float(v) for v in np.ravel(np.asarray(sigma_l, dtype=np.float64))),
-        expected_tre=None if expected_tre is None else float(expected_tre),
+        expected_tre_rigid=None if expected_tre_rigid is None else float(expected_tre_rigid),
+        expected_tre_with_corrections=None if expected_tre_with_corrections is None
+        else float(expected_tre_with_corrections),
         n_fiducials=int(n_fiducials),
         created=created.isoformat(timespec="microseconds").replace("+00:00", "Z"),
         package_version=package_version() if version is None else version)
@@ -238,6 +251,22 @@ def launch_snippet(cal: Calibration) -> str:
             ")\n")
 
 
+def expected_errors(cal: Calibration) -> str:
+    """One line saying what each expected TRE of ``cal`` is: the transform alone
+    (``expected_tre_rigid``), and with the decision's corrections, which the file does not hold
+    (``expected_tre_with_corrections``)."""
+    def mm(v: Optional[float]) -> str:
+        return "not estimated" if v is None else f"{v * 1e3:.4g} mm"
+
+    line = f"expected target error: {mm(cal.expected_tre_rigid)} with this transform alone " \
+           f"(expected_tre_rigid)"
+    if cal.decision.method in INTERPOLATIONS:
+        line += (f"; {mm(cal.expected_tre_with_corrections)} only with the model's "
+                 f"{cal.decision.method} corrections of each target (expected_tre_with_"
+                 f"corrections: the node's ~/correct_targets; not in this file)")
+    return line
+
+
 def write_calibration(path: str, cal: Calibration) -> None:
     """Write ``cal`` to ``path`` as YAML, atomically: a temporary file with a unique name in the
     same directory, fsync, rename over ``path``, fsync of the directory. A reader sees the old
@@ -247,7 +276,9 @@ def write_calibration(path: str, cal: Calibration) -> None:
     """
     header = ("# rbc_registration calibration (docs/CALIBRATION.md): the pose of child_frame in\n"
               "# parent_frame, p_parent = R(rotation) p_child + translation; metres, REP 103.\n"
-              f"# {static_transform_publisher_command(cal)}\n")
+              f"# {static_transform_publisher_command(cal)}\n"
+              "# expected_tre_rigid: this transform alone; expected_tre_with_corrections: only\n"
+              "# with decision.method's corrections of each target (not in this file).\n")
     text = header + yaml.safe_dump(cal.to_mapping(), sort_keys=False, allow_unicode=True,
                                    default_flow_style=None, width=100)
     directory = os.path.dirname(os.path.abspath(path))

@@ -17,7 +17,10 @@ from typing import Any, Optional, Sequence
 import yaml
 
 FORMAT = "rbc_registration_calibration"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Versions this reader reads: 1 had one ``expected_tre`` (the decision's figure, read as
+#: ``expected_tre_with_corrections``; ``expected_tre_rigid`` then unknown).
+READABLE_VERSIONS = (1, 2)
 UNITS = "m"
 MAX_TEXT = 1000  # characters of a frame id, mode, reason or version string
 
@@ -26,7 +29,12 @@ VECTOR_KEYS = {"translation": ("x", "y", "z"), "rotation": ("x", "y", "z", "w")}
 DECISION_KEYS = ("mode", "method", "apply", "reason")
 KEYS = ("format", "format_version", "parent_frame", "child_frame", "dimension", "units",
         "registration", "translation", "rotation", "fre_rms", "decision", "sigma",
-        "sigma_axis", "sigma_L", "expected_tre", "n_fiducials", "created", "package_version")
+        "sigma_axis", "sigma_L", "expected_tre_rigid", "expected_tre_with_corrections",
+        "n_fiducials", "created", "package_version")
+#: The keys of a version 1 file.
+KEYS_V1 = ("format", "format_version", "parent_frame", "child_frame", "dimension", "units",
+           "registration", "translation", "rotation", "fre_rms", "decision", "sigma",
+           "sigma_axis", "sigma_L", "expected_tre", "n_fiducials", "created", "package_version")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,10 +210,16 @@ def from_mapping(data: Any) -> dict[str, Any]:
     if isinstance(data, dict) and data.get("format") != FORMAT:
         got = "missing" if "format" not in data else f"got {_quote(data['format'])}"
         raise ValueError(f"format: must be {FORMAT!r} (not a calibration file?), {got}")
-    data = _mapping("", data, KEYS)
-    if check_int("format_version", data["format_version"], minimum=1) != FORMAT_VERSION:
-        raise ValueError(f"format_version: {data['format_version']} is not supported (this "
-                         f"reader knows version {FORMAT_VERSION})")
+    version = None
+    if isinstance(data, dict) and "format_version" in data:
+        version = check_int("format_version", data["format_version"], minimum=1)
+    if version is not None and version not in READABLE_VERSIONS:
+        raise ValueError(f"format_version: {version} is not supported (this reader knows "
+                         f"versions {', '.join(map(str, READABLE_VERSIONS))})")
+    data = _mapping("", data, KEYS_V1 if version == 1 else KEYS)
+    if version == 1:   # its expected_tre was the decision's figure (docs/CALIBRATION.md)
+        data = {**data, "expected_tre_rigid": None,
+                "expected_tre_with_corrections": data["expected_tre"]}
     if data["units"] != UNITS:
         raise ValueError(f"units: must be {UNITS!r} (all lengths are metres), got "
                          f"{_quote(data['units'])}")
@@ -230,9 +244,11 @@ _DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?|[-+]?\.(inf|Inf|IN
 
 class _UniqueKeyLoader(yaml.SafeLoader):
     """``yaml.SafeLoader`` that refuses a mapping with a key twice (the plain loader keeps the
-    last: an edited file with two ``translation`` blocks would load the second silently), and a
-    number YAML 1.1 reads otherwise than it looks: ``1:20`` (sexagesimal, 80), ``012`` (octal,
-    10), ``0x1f``, ``0b11``, ``1_000``."""
+    last: an edited file with two ``translation`` blocks would load the second silently), a key
+    that is a list or a mapping (``? [a, b] : 1``: no field has such a name), a number YAML 1.1
+    reads otherwise than it looks: ``1:20`` (sexagesimal, 80), ``012`` (octal, 10), ``0x1f``,
+    ``0b11``, ``1_000``, and a boolean other than ``true`` / ``false`` (``yes``, ``no``, ``on``,
+    ``off``: ``mode: off`` is read as false)."""
 
     def _number(self, node: Any, construct: Any) -> Any:
         text = str(node.value)
@@ -249,10 +265,28 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     def construct_yaml_float(self, node: Any) -> Any:
         return self._number(node, yaml.SafeLoader.construct_yaml_float)
 
+    def construct_yaml_bool(self, node: Any) -> Any:
+        """``true`` / ``false`` only: YAML 1.1 also reads ``yes``, ``no``, ``on``, ``off`` as
+        booleans (``mode: off`` would be false, ``apply: yes`` true)."""
+        text = str(node.value)
+        if text.lower() not in ("true", "false"):
+            raise yaml.constructor.ConstructorError(
+                None, None, _bool_problem(None, node), node.start_mark)
+        return yaml.SafeLoader.construct_yaml_bool(self, node)
+
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         seen: set = set()
-        for key_node, _ in node.value:
+        for key_node, value_node in node.value:
+            if not isinstance(key_node, yaml.ScalarNode):   # ? [a, b] : 1, {[1, 2]: x}
+                kind = "list" if isinstance(key_node, yaml.SequenceNode) else "mapping"
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"a key must be a name, got a {kind}", key_node.start_mark)
             key = self.construct_object(key_node, deep=deep)
+            if (isinstance(value_node, yaml.ScalarNode) and value_node.style is None
+                    and value_node.tag == "tag:yaml.org,2002:bool"
+                    and str(value_node.value).lower() not in ("true", "false")):
+                raise yaml.constructor.ConstructorError(
+                    None, None, _bool_problem(key, value_node), value_node.start_mark)
             if key in seen:
                 raise yaml.constructor.ConstructorError(
                     None, None, f"found the key {key!r} twice", key_node.start_mark)
@@ -260,6 +294,15 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+def _bool_problem(key: Any, node: Any) -> str:
+    """Why a YAML 1.1 boolean other than true/false is refused, and what to write instead."""
+    name = f"{_name(key)}: " if key is not None else ""
+    value = yaml.SafeLoader.bool_values[str(node.value).lower()]
+    return (f"{name}{node.value} is read by YAML 1.1 as {str(value).lower()}: write true or "
+            f"false for a boolean, or quote a string: {name}'{node.value}'")
+
+
+_UniqueKeyLoader.add_constructor("tag:yaml.org,2002:bool", _UniqueKeyLoader.construct_yaml_bool)
 _UniqueKeyLoader.add_constructor("tag:yaml.org,2002:int", _UniqueKeyLoader.construct_yaml_int)
 _UniqueKeyLoader.add_constructor("tag:yaml.org,2002:float", _UniqueKeyLoader.construct_yaml_float)
 

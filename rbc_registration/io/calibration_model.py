@@ -10,15 +10,15 @@ from __future__ import annotations
 import math
 import os
 import time
-from typing import Any, Callable, Mapping, Optional
+from typing import Any, Callable, Mapping, NamedTuple, Optional
 
-from ..core.constants import M_PER_MM
+from ..core.constants import M_PER_MM, UNCORRECTED
 from ..core.decision import Decision as ModelDecision
 from ..pipeline.settings import Settings
 from ..pipeline.snapshot import SNAPSHOT_FORMAT
 from ..pipeline.state import ModelState
 from .calibration import REGISTRATIONS, Calibration, Decision, calibration_from_registration
-from .calibration_format import check_number
+from .calibration_format import _quote, check_number
 
 #: The calibration file ``~/save`` writes into ``state_dir``.
 CALIBRATION_NAME = "calibration.yaml"
@@ -37,27 +37,49 @@ def decision_record(decision: ModelDecision) -> Decision:
                     reason=decision.reason)
 
 
-def expected_tre(decision: ModelDecision) -> Optional[float]:
-    """The expected TRE of the decision: its chosen method's cross-validated median error (unit
-    of the points); None when it could not be cross-validated."""
-    score = decision.candidate(decision.method)
+def _cv_median(decision: ModelDecision, method: str) -> Optional[float]:
+    score = decision.candidate(method)
     ok = score is not None and math.isfinite(score.cv_median)
     return float(score.cv_median) if ok else None
 
 
-def _document_decision(data: Mapping[str, Any], where: str,
-                       scale: float) -> tuple[Decision, Optional[float]]:
-    """The decision and expected TRE [m] of a snapshot or report (its ``decision`` object)."""
+def expected_tre(decision: ModelDecision) -> Optional[float]:
+    """The expected TRE of the decision: its chosen method's cross-validated median error (unit
+    of the points); None when it could not be cross-validated. With a correcting method it needs
+    the corrections (the calibration file's ``expected_tre_with_corrections``)."""
+    return _cv_median(decision, decision.method)
+
+
+def rigid_expected_tre(decision: ModelDecision) -> Optional[float]:
+    """The expected TRE of the rigid registration alone, no corrections: the ``uncorrected``
+    candidate's cross-validated median error (each held-out fiducial mapped by the rigid fit of
+    the others; unit of the points); None when it could not be cross-validated."""
+    return _cv_median(decision, UNCORRECTED)
+
+
+class _Figures(NamedTuple):
+    decision: Decision
+    with_corrections: Optional[float]   # [m]
+    uncorrected: Optional[float]        # [m]
+
+
+def _document_decision(data: Mapping[str, Any], where: str, scale: float) -> _Figures:
+    """The decision and the expected TREs [m] of a snapshot or report (its ``decision``
+    object): the decision's method's and the uncorrected registration's cross-validated
+    medians."""
     d = _get(data, "decision", where)
     try:
         record = Decision(mode=d["mode"], method=d["method"], apply=d["apply"],
                           reason=d["reason"])
-        median = d["cv"].get(d["method"], {}).get("median")
+        medians = {m: d["cv"].get(m, {}).get("median") for m in (d["method"], UNCORRECTED)}
     except (KeyError, TypeError, AttributeError):
         raise ValueError(f"{where}: decision: needs mode, method, apply, reason and cv") from None
-    if median is None:
-        return record, None
-    return record, scale * check_number(f"{where}: decision: cv: {d['method']}: median", median)
+    except ValueError as exc:   # a field of the record, e.g. decision.apply: must be true or ...
+        raise ValueError(f"{where}: {exc}") from None
+    figures = [None if v is None else
+               scale * check_number(f"{where}: decision: cv: {m}: median", v)
+               for m, v in medians.items()]
+    return _Figures(record, figures[0], figures[-1])
 
 
 def calibration_from_state(state: ModelState, settings: Settings, registration: str,
@@ -80,7 +102,10 @@ def calibration_from_state(state: ModelState, settings: Settings, registration: 
         reg.rotation, reg.translation, parent_frame=settings.destination_frame,
         child_frame=settings.working_frame, registration=registration, fre_rms=reg.fre_rms,
         decision=decision_record(model.decision), sigma=model.sigma, sigma_l=model.sigma_l,
-        expected_tre=expected_tre(model.decision),
+        # The node fits both registrations to all fiducials: the corrected one's rigid part
+        # then agrees with the uncorrected one to second order in the bias (core/restoration).
+        expected_tre_rigid=rigid_expected_tre(model.decision),
+        expected_tre_with_corrections=expected_tre(model.decision),
         n_fiducials=len(model.ids), clock=clock or (lambda: stamp_s))
 
 
@@ -109,31 +134,69 @@ def _numbers(data: Mapping[str, Any], key: str, where: str) -> list[float]:
 _LAST_STAMP_NS = 253402300799 * 10**9
 
 
+def _unit_scale(data: Mapping[str, Any], where: str, key: str, unit: Optional[str],
+                default: Optional[str] = None) -> float:
+    """Metres per unit of the source: the unit it records under ``key`` (``default`` when it
+    records none), else ``unit`` (``--unit``); a ``unit`` other than the recorded one is
+    refused, naming both."""
+    recorded = data.get(key, default)
+    if recorded is None:
+        if unit is None:
+            raise ValueError(f"{where}: {key}: missing: the file records no length unit; give "
+                             f"--unit ({', '.join(METRES_PER_UNIT)})")
+        recorded = unit
+    if not isinstance(recorded, str) or recorded not in METRES_PER_UNIT:
+        raise ValueError(f"{where}: {key} {_quote(recorded)}: a calibration is in metres; "
+                         f"export converts {', '.join(METRES_PER_UNIT)}")
+    if unit is not None and unit != recorded:
+        raise ValueError(f"{where}: --unit {unit} contradicts the file's {key} {recorded!r}: "
+                         f"refused (export converts by the unit the file records; drop --unit)")
+    return METRES_PER_UNIT[recorded]
+
+
+def _check_dimension(data: Mapping[str, Any], where: str, key: str, rotation: list) -> None:
+    """The recorded dimension (``key``), when there is one, must be the rotation's."""
+    if data.get(key) is None:
+        return
+    dim = data[key]
+    if isinstance(dim, bool) or dim not in (2, 3):
+        raise ValueError(f"{where}: {key}: must be 2 or 3, got {_quote(dim)}")
+    if len(rotation) != dim:
+        raise ValueError(f"{where}: {key} is {dim}, but the rotation is {len(rotation)} x "
+                         f"{len(rotation[0]) if rotation else 0}")
+
+
 def calibration_from_document(data: Any, where: str, registration: str = "corrected", *,
                               parent_frame: Optional[str] = None,
                               child_frame: Optional[str] = None, unit: Optional[str] = None,
-                              mtime: Optional[float] = None) -> Calibration:
+                              mtime: Optional[float] = None,
+                              note: Callable[[str], None] = lambda _line: None) -> Calibration:
     """The calibration in a node snapshot (``format`` ``rbc_registration calibration 1``) or a
     ``register`` / ``evaluate --json`` report.
 
     :param where: the file name, for messages.
-    :param parent_frame: the destination frame (default: the snapshot's; a report needs it or
-        takes ``world``).
-    :param child_frame: the working frame (default: the snapshot's, or ``tracker``).
-    :param unit: the length unit of a report, overriding its ``unit`` (``m`` or ``mm``).
+    :param parent_frame: the destination frame (default: the snapshot's or the report's
+        ``destination_frame``; a report that records none: ``world``, said through ``note``).
+    :param child_frame: the working frame (default: the recorded ``working_frame``, or
+        ``tracker``, said through ``note``).
+    :param unit: the length unit (``m`` or ``mm``) of a source that records none; one that
+        records its unit (a report's ``unit``, a snapshot's ``units``) is read in it, and a
+        different ``unit`` is refused.
     :param mtime: seconds since the epoch for ``created`` of a report (it holds no time).
+    :param note: called with one line for each default that stood in for a missing value.
     :raises ValueError: one line naming ``where`` and what is missing or wrong.
     """
     if not isinstance(data, dict):
         raise ValueError(f"{where}: not a JSON object")
     if registration not in REGISTRATIONS:
-        raise ValueError(f"registration must be one of {', '.join(REGISTRATIONS)}, "
+        raise ValueError(f"{where}: registration must be one of {', '.join(REGISTRATIONS)}, "
                          f"got {registration!r}")
     snapshot = data.get("format") == SNAPSHOT_FORMAT
+    notes: list[str] = []   # said once the calibration is built, not before an error
     if snapshot:
         if not data.get("model_valid"):
             raise ValueError(f"{where}: the snapshot holds no model ({data.get('error', '')})")
-        scale = 1.0
+        scale = _unit_scale(data, where, "units", unit, default="m")   # the format's metres
         parent = parent_frame or _get(data, "destination_frame", where)
         child = child_frame or _get(data, "working_frame", where)
         stamp_ns = _number(data, "stamp_ns", where)
@@ -146,39 +209,55 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
             raise ValueError(f"{where}: fiducial_ids: must be a list, got {type(ids).__name__}")
         n_fiducials = len(ids)
         sigma_l = _numbers(data, "sigma_l", where)
+        same_fits = True        # the node fits both registrations to all fiducials
     else:
-        label = unit or _get(data, "unit", where)
-        if not isinstance(label, str) or label not in METRES_PER_UNIT:
-            raise ValueError(f"{where}: unit {label!r}: a calibration is in metres; export "
-                             f"converts {', '.join(METRES_PER_UNIT)} (give --unit)")
-        scale = METRES_PER_UNIT[label]
-        parent, child = parent_frame or "world", child_frame or "tracker"
+        scale = _unit_scale(data, where, "unit", unit)
+        parent = parent_frame or data.get("destination_frame")
+        child = child_frame or data.get("working_frame")
+        assumed = [f"{option} {default}" for option, frame, default in
+                   (("--parent-frame", parent, "world"), ("--child-frame", child, "tracker"))
+                   if frame is None]
+        if assumed:
+            notes.append(f"{where} records no frames (a register report): {' '.join(assumed)} "
+                         f"assumed (the node's defaults); give the option to say which")
+        parent, child = parent or "world", child or "tracker"
         created_s = time.time() if mtime is None else mtime
         n_fiducials = _get(data, "n_fiducials", where)
         sigma_l = _numbers(data, "sigma_L", where)
+        same_fits = ("uncorrected_fit" in data and "corrected_fit" in data
+                     and data["uncorrected_fit"] == data["corrected_fit"])
     reg = _get(data, registration, where)
     sigma = None if data.get("sigma") is None else _number(data, "sigma", where)
-    decision, tre = _document_decision(data, where, scale)
+    figures = _document_decision(data, where, scale)
     at = f"{where}: {registration}"
     rows = _get(reg, "rotation", at)
     if not isinstance(rows, list) or not all(isinstance(r, list) for r in rows):
         raise ValueError(f"{at}: rotation: must be a list of rows of numbers")
     rotation = [[check_number(f"{at}: rotation[{i}][{k}]", v) for k, v in enumerate(row)]
                 for i, row in enumerate(rows)]
+    _check_dimension(data, where, "dimension" if snapshot else "dim", rotation)
     translation = [scale * v for v in _numbers(reg, "translation", at)]
     fre_rms = scale * _number(reg, "fre_rms", at)
     if isinstance(n_fiducials, bool) or not isinstance(n_fiducials, int):
         raise ValueError(f"{where}: n_fiducials: must be an integer, got {n_fiducials!r}")
+    # The uncorrected registration's held-out error is the rigid figure of either registration
+    # when both were fitted to the same fiducials (they then agree to second order in the bias,
+    # core/restoration); of a corrected one fitted to other fiducials it is not known.
+    rigid = figures.uncorrected if registration == UNCORRECTED or same_fits else None
     try:
-        return calibration_from_registration(
+        cal = calibration_from_registration(
             rotation, translation,
             parent_frame=parent, child_frame=child, registration=registration,
             fre_rms=fre_rms,
-            decision=decision, sigma=None if sigma is None else scale * sigma,
-            sigma_l=[scale * v for v in sigma_l], expected_tre=tre, n_fiducials=n_fiducials,
+            decision=figures.decision, sigma=None if sigma is None else scale * sigma,
+            sigma_l=[scale * v for v in sigma_l], expected_tre_rigid=rigid,
+            expected_tre_with_corrections=figures.with_corrections, n_fiducials=n_fiducials,
             clock=lambda: created_s)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
+    for line in notes:
+        note(line)
+    return cal
 
 
 def check_matches(cal: Calibration, where: str, working_frame: str, destination_frame: str,

@@ -58,6 +58,9 @@ def evaluate_contents(contents: BagContents, settings: Settings,
     report = model_report(ev.model, targets.ids if targets else (),
                           targets.working if targets else None,
                           targets.destination if targets else None, loo_err, "m")
+    # the frames of the measurements the model was built from (the others were rejected)
+    report["working_frame"] = settings.working_frame
+    report["destination_frame"] = settings.destination_frame
     report["bag"] = {"path": str(contents.path), "messages": dict(contents.counts),
                      "rejected": ev.rejected, "disabled": list(ev.fiducials.disabled_ids),
                      "targets_source": targets.source if targets else None,

@@ -32,6 +32,10 @@ def _destination_summary(tre: Optional[np.ndarray], bound: np.ndarray) -> dict[s
     return {"tre_median": _num(float(np.median(tre))), "fraction_within_bound": _num(within)}
 
 
+def _ids(model: RbcModel, subset: Optional[Sequence[int]]) -> Optional[list[str]]:
+    return None if subset is None else [model.ids[i] for i in subset]
+
+
 def model_report(model: RbcModel, target_ids: Sequence[str] = (),
                  targets_working: Optional[ArrayLike] = None,
                  targets_destination: Optional[ArrayLike] = None,
@@ -46,6 +50,9 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
         "restoration": cfg.restoration,
         "steps": cfg.steps if cfg.restoration == "iterative" else 1,
         "interpolation": cfg.interpolation,
+        # the fiducial ids each registration was fitted to (null: all of them)
+        "uncorrected_fit": _ids(model, cfg.uncorrected_subset),
+        "corrected_fit": _ids(model, cfg.corrected_subset),
         "sigma": _num(model.sigma),
         "sigma_axis": _num(model.sigma_axis),
         "sigma_source": model.sigma_source,

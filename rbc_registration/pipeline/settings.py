@@ -119,9 +119,10 @@ SPECS: dict[str, Spec] = {
                       "default ~/.ros), one per node; empty = no persistence. Read-only.",
                       read_only=True),
     "calibration_file": Spec("", "Calibration YAML (docs/CALIBRATION.md) loaded at start and "
-                             "published on ~/transform and /tf_static until a live model is "
-                             "built; its frames and dimension must be the node's; empty = none. "
-                             "Read-only.", read_only=True),
+                             "published on ~/transform (registration corrected) or "
+                             "~/transform_uncorrected (uncorrected) and /tf_static until a live "
+                             "model is built; its frames and dimension must be the node's; "
+                             "empty = none. Read-only.", read_only=True),
     "journal_fsync": Spec(False, "fsync the journal after every record (survives power loss; "
                           "slower). Default: flush to the OS per record (survives SIGKILL). "
                           "Read-only.", read_only=True),

@@ -168,8 +168,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if self._loaded is not None:  # publish what was registered before, until a live model
             transform = saved.calibration_transform(self._loaded.calibration,
                                                     self.get_clock().now().to_msg())
+            # on the topic of the file's registration, so each topic keeps its meaning when the
+            # live model replaces the file; /tf_static holds it whichever tf_broadcast chooses
+            uncorrected = self._loaded.calibration.registration == "uncorrected"
             with self._pub_lock:
-                self._pub_transform.publish(transform)
+                (self._pub_transform_u if uncorrected else self._pub_transform).publish(transform)
                 self._tf_transforms = dict.fromkeys(("corrected", "uncorrected"), transform)
                 self._publish_tf()
             self.get_logger().info(self._loaded.describe())
@@ -257,7 +260,9 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
 
     Exits with status 1 and one FATAL line ``cannot start: <path and reason>`` when a
     parameter is invalid, ``state_dir`` is in use by another node, is not a usable directory,
-    or holds a journal that is not a regular file or belongs to another setup.
+    or holds a journal that is not a regular file or belongs to another setup, or a
+    ``calibration_file`` does not validate; any other error before the node spins is one line
+    too, ``cannot start: <exception type>: <message>``.
     """
     try:
         rclpy.init(args=args)
@@ -280,6 +285,12 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
         pass
     except (ValueError, ParameterException, OSError) as exc:
         get_logger("registration_node").fatal(start_failure(exc))
+        code = 1
+    except Exception as exc:  # any other error while starting (e.g. reading a calibration_file)
+        if node is not None:  # a failure while spinning keeps its traceback
+            raise
+        reason = start_failure(exc).removeprefix("cannot start: ")
+        get_logger("registration_node").fatal(f"cannot start: {type(exc).__name__}: {reason}")
         code = 1
     finally:
         if node is not None:

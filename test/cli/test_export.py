@@ -3,6 +3,7 @@ report (millimetres converted to metres), the static_transform_publisher line an
 snippet printed; bad input is one line, exit 2."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -13,7 +14,9 @@ from rbc_registration.core.synthetic import make_cell
 from rbc_registration.io.calibration import (read_calibration,
                                              static_transform_publisher_command)
 from rbc_registration.io.calibration_model import calibration_from_state
-from rbc_registration.io.csv_io import write_fiducials
+from rbc_registration.io.bag.synthetic import cell_messages
+from rbc_registration.io.bag.writer import write_bag
+from rbc_registration.io.csv_io import write_fiducials, write_targets
 from rbc_registration.pipeline.settings import Settings
 from rbc_registration.pipeline.snapshot import snapshot_json
 from rbc_registration.pipeline.state import build_state
@@ -58,8 +61,10 @@ def test_export_of_a_node_snapshot(tmp_path, capsys, node_state, registration):
                                                                      registration)
     assert cal.decision.mode == "on" and cal.decision.apply and cal.decision.method == "paper"
     assert cal.decision.reason == model.decision.reason
-    assert cal.expected_tre == pytest.approx(model.decision.candidate("paper").cv_median,
-                                             rel=1e-12)
+    assert cal.expected_tre_with_corrections == pytest.approx(
+        model.decision.candidate("paper").cv_median, rel=1e-12)
+    assert cal.expected_tre_rigid == pytest.approx(
+        model.decision.candidate("uncorrected").cv_median, rel=1e-12)
     assert cal.n_fiducials == 18 and cal.created.startswith("2023-11-14T22:13:20.5")
     assert cal.sigma == pytest.approx(model.sigma, rel=1e-12)
     # The node's own ~/save builds the same calibration from the state.
@@ -94,8 +99,10 @@ def test_export_of_a_register_report_in_mm(tmp_path, capsys):
     dec = data["decision"]
     assert (cal.decision.mode, cal.decision.method, cal.decision.apply, cal.decision.reason) == (
         "cv", dec["method"], dec["apply"], dec["reason"])
-    assert cal.expected_tre == pytest.approx(dec["cv"][dec["method"]]["median"] * 1e-3,
-                                             rel=1e-12)
+    assert cal.expected_tre_with_corrections == pytest.approx(
+        dec["cv"][dec["method"]]["median"] * 1e-3, rel=1e-12)
+    assert cal.expected_tre_rigid == pytest.approx(dec["cv"]["uncorrected"]["median"] * 1e-3,
+                                                   rel=1e-12)
     assert "--frame-id world --child-frame-id tracker" in capsys.readouterr().out
 
 
@@ -183,3 +190,155 @@ def test_a_source_that_is_not_a_regular_file_is_refused(capsys):
 def test_missing_file(tmp_path, capsys):
     assert cli.main(["export", str(tmp_path / "nope.json")]) == 2
     assert "cannot be read" in capsys.readouterr().err
+
+
+# --- what each expected error is, units, frames (a review) -------------------------------------
+
+@pytest.fixture(scope="module")
+def ra_report(tmp_path_factory):
+    """A register report of cell RA (mm) with targets and truth: the decision corrects."""
+    d = tmp_path_factory.mktemp("ra")
+    cell = make_cell("RA", seed=3)
+    write_fiducials(d / "fiducials.csv", cell.fiducial_ids, cell.fiducial_measurements,
+                    [t[None] for t in cell.fiducial_truth])
+    write_targets(d / "targets.csv", cell.target_ids, cell.target_means, cell.target_truth)
+    assert cli.main(["register", str(d / "fiducials.csv"), "--targets", str(d / "targets.csv"),
+                     "--json", str(d / "report.json")]) == 0
+    return cell, d / "report.json", json.loads((d / "report.json").read_text())
+
+
+@pytest.mark.parametrize("registration", ["corrected", "uncorrected"])
+def test_the_file_says_what_the_transform_alone_gives(tmp_path, capsys, ra_report,
+                                                      registration):
+    """A review: ``expected_tre`` was kriging's held-out median (0.078 mm) while the file's
+    transform alone gives the rigid registration's error at the targets (0.26 mm)."""
+    cell, report, data = ra_report
+    assert data["decision"]["apply"]
+    out = tmp_path / "cal.yaml"
+    assert cli.main(["export", str(report), "--out", str(out), "--registration", registration,
+                     "--parent-frame", "world", "--child-frame", "tracker"]) == 0
+    cal = read_calibration(str(out))
+    cv = data["decision"]["cv"]
+    assert cal.expected_tre_rigid == pytest.approx(cv["uncorrected"]["median"] * 1e-3, rel=1e-12)
+    assert cal.expected_tre_with_corrections == pytest.approx(
+        cv[data["decision"]["method"]]["median"] * 1e-3, rel=1e-12)
+    # What a user of the transform alone gets at the targets: the rigid figure, not the other.
+    m = cal.transform_matrix()
+    work = np.c_[cell.target_means * 1e-3, np.zeros(len(cell.target_means))]
+    alone = np.median(np.linalg.norm((work @ m[:3, :3].T + m[:3, 3])[:, :2]
+                                     - cell.target_truth * 1e-3, axis=1))
+    assert abs(math.log(cal.expected_tre_rigid / alone)) < abs(
+        math.log(cal.expected_tre_with_corrections / alone))
+    printed = capsys.readouterr().out
+    assert (f"expected target error: {cal.expected_tre_rigid * 1e3:.4g} mm with this transform "
+            f"alone (expected_tre_rigid); {cal.expected_tre_with_corrections * 1e3:.4g} mm only "
+            f"with the model's kriging corrections") in printed
+    assert "expected_tre_with_corrections: only" in out.read_text()   # the file's comment
+
+
+def test_a_corrected_registration_fitted_to_other_fiducials_has_no_rigid_figure(tmp_path):
+    cell = make_cell("RA", seed=3)
+    csv = tmp_path / "fiducials.csv"
+    write_fiducials(csv, cell.fiducial_ids, cell.fiducial_measurements,
+                    [t[None] for t in cell.fiducial_truth])
+    report = tmp_path / "report.json"
+    assert cli.main(["register", str(csv), "--corrected-fit", ",".join(cell.fiducial_ids[:40]),
+                     "--json", str(report)]) == 0
+    data = json.loads(report.read_text())
+    assert data["corrected_fit"] == list(cell.fiducial_ids[:40]) and data["uncorrected_fit"] \
+        is None
+    for registration, known in (("corrected", False), ("uncorrected", True)):
+        out = tmp_path / f"{registration}.yaml"
+        assert cli.main(["export", str(report), "--out", str(out), "--registration",
+                         registration]) == 0
+        assert (read_calibration(str(out)).expected_tre_rigid is not None) == known
+
+
+@pytest.mark.parametrize("recorded, given", [("m", "mm"), ("mm", "m")])
+def test_a_unit_that_contradicts_the_report_is_refused(tmp_path, capsys, recorded, given):
+    """A review: ``--unit mm`` on a report in metres rescaled it by 1000 without a word."""
+    src = tmp_path / "in.json"
+    src.write_text(json.dumps({**REPORT, "unit": recorded}))
+    assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml"), "--unit",
+                     given]) == 2
+    err = capsys.readouterr().err
+    assert (f"{src}: --unit {given} contradicts the file's unit {recorded!r}: refused" in err
+            and len(err.strip().splitlines()) == 1), err
+    assert not (tmp_path / "x.yaml").exists()
+    # The same unit, or none given: the report's own.
+    for extra in ([], ["--unit", recorded]):
+        assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml"), *extra]) == 0
+        assert read_calibration(str(tmp_path / "x.yaml")).sigma == pytest.approx(
+            0.1 * (1e-3 if recorded == "mm" else 1.0))
+
+
+def test_a_report_without_a_unit_needs_one(tmp_path, capsys):
+    data = {k: v for k, v in REPORT.items() if k != "unit"}
+    src = tmp_path / "in.json"
+    src.write_text(json.dumps(data))
+    assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml")]) == 2
+    assert f"{src}: unit: missing: the file records no length unit; give --unit (m, mm)" in \
+        capsys.readouterr().err
+    assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml"), "--unit", "mm"]) == 0
+
+
+def test_the_snapshot_unit_and_dimension_are_checked(tmp_path, capsys, node_state):
+    state, _settings = node_state
+    data = json.loads(snapshot_json(state, "laser", "base", 3))
+    for change, args, message in (
+            ({}, ["--unit", "mm"], "--unit mm contradicts the file's units 'm': refused"),
+            ({"units": "mm"}, [], None),
+            ({"units": "ft"}, [], "units 'ft': a calibration is in metres; export converts m, mm"),
+            ({"dimension": 2}, [], "dimension is 2, but the rotation is 3 x 3")):
+        src = tmp_path / "calibration.json"
+        src.write_text(json.dumps({**data, **change}))
+        out = tmp_path / "x.yaml"
+        code = cli.main(["export", str(src), "--out", str(out), *args])
+        err = capsys.readouterr().err
+        if message is None:   # a snapshot in mm (hand-made) is converted like a report
+            assert code == 0
+            assert read_calibration(str(out)).translation == pytest.approx(
+                [v * 1e-3 for v in data["corrected"]["translation"]], rel=1e-12)
+            continue
+        assert code == 2 and f"{src}: {message}" in err and len(err.strip().splitlines()) == 1, \
+            err
+
+
+def test_every_export_error_names_the_file(tmp_path, capsys):
+    """A review: a bad field of the decision record (``apply: "yes"``) came without the file."""
+    data = json.loads(json.dumps(REPORT))
+    data["decision"]["apply"] = "yes"
+    src = tmp_path / "in.json"
+    src.write_text(json.dumps(data))
+    assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert f"error: {src}: decision.apply: must be true or false, got 'yes'" in err, err
+
+
+def test_frames_of_an_evaluate_report_and_the_defaults_of_a_register_report(tmp_path, capsys,
+                                                                            ra_report):
+    """A review: an evaluate report recorded no frames, so export used world/tracker without a
+    word. The evaluate report records the node's frames its measurements were accepted in; a
+    register report (a CSV has no frames) gets the defaults and one warning line saying so."""
+    cell, report, _ = ra_report
+    bag = tmp_path / "bag"
+    write_bag(bag, cell_messages(cell, working_frame="laser", destination_frame="base_link"),
+              "sqlite3", progress=False)
+    ev = tmp_path / "ev.json"
+    assert cli.main(["evaluate", str(bag), "--quiet", "-p", "working_frame:=laser", "-p",
+                     "destination_frame:=base_link", "--json", str(ev)]) == 0
+    data = json.loads(ev.read_text())
+    assert (data["working_frame"], data["destination_frame"]) == ("laser", "base_link")
+    capsys.readouterr()
+    assert cli.main(["export", str(ev), "--out", str(tmp_path / "ev.yaml")]) == 0
+    cal = read_calibration(str(tmp_path / "ev.yaml"))
+    assert (cal.parent_frame, cal.child_frame) == ("base_link", "laser")
+    assert "warning" not in capsys.readouterr().err
+    assert cli.main(["export", str(report), "--out", str(tmp_path / "reg.yaml")]) == 0
+    err = capsys.readouterr().err
+    assert err == (f"rbc-registration export: warning: {report} records no frames (a register "
+                   f"report): --parent-frame world --child-frame tracker assumed (the node's "
+                   f"defaults); give the option to say which\n")
+    assert cli.main(["export", str(report), "--out", str(tmp_path / "reg.yaml"),
+                     "--parent-frame", "world"]) == 0
+    assert "--child-frame tracker assumed" in capsys.readouterr().err

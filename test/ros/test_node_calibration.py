@@ -79,6 +79,25 @@ class TestSavedCalibration(NodeTestBase):
                                    atol=1e-12)
         assert "calibration from" not in second.status().message
 
+    def test_an_uncorrected_calibration_is_published_as_the_uncorrected_registration(self,
+                                                                                  tmp_path):
+        """A review: a file of ``registration: uncorrected`` was published on ~/transform, the
+        topic of the corrected registration {R_c, tau_c}; it goes on ~/transform_uncorrected
+        (and /tf_static), where the live model's {R_u, tau_u} later replaces it."""
+        first = self.make_node(state_dir=str(tmp_path / "a"), tf_broadcast="uncorrected")
+        self.stream(first)
+        self.recompute(first)
+        assert self.srv(first, Trigger, "save").success
+        path = tmp_path / "a" / "calibration.yaml"
+        cal = read_calibration(str(path))
+        assert cal.registration == "uncorrected"
+        second = self.make_node(state_dir="", calibration_file=str(path))
+        got = self.latest(second, TransformStamped, f"/{second.get_name()}/transform_uncorrected")
+        np.testing.assert_allclose(transform_to_matrix(got), cal.transform_matrix(), atol=1e-12)
+        (entry,) = self.tf_entry(second)
+        np.testing.assert_allclose(transform_to_matrix(entry), cal.transform_matrix(),
+                                   atol=1e-12)
+
     def test_a_calibration_of_other_frames_or_a_bad_file_is_refused(self, tmp_path):
         node = self.make_node(state_dir=str(tmp_path / "a"))
         self.stream(node)

@@ -4,6 +4,7 @@ measures ~/correct_target latency (severe 3). Each test failed on the code befor
 
 import os
 import signal
+import sys
 import threading
 import time
 
@@ -146,6 +147,43 @@ def test_start_up_failures_are_one_fatal_line(tmp_path, case):
     assert "AttributeError" not in text
     if case == "journal-is-a-symlink":
         assert (tmp_path / "victim").read_text() == "precious\n"
+
+
+@pytest.mark.parametrize("content", ["? [a, b]\n: 1\n", "{[1, 2]: x}\n",
+                                     "format: rbc_registration_calibration\napply: yes\n"])
+def test_a_malformed_calibration_file_is_one_fatal_line(tmp_path, content):
+    """A review: a calibration_file with a list as a key ended in a 37-line TypeError
+    traceback."""
+    path = tmp_path / "cal.yaml"
+    path.write_text(content)
+    proc = start_test_node("rbc_fatal_cal", None, log=open(tmp_path / "node.log", "w"),
+                           calibration_file=str(path))
+    try:
+        assert proc.wait(timeout=60) == 1
+    finally:
+        stop_process(proc)
+    lines, text = fatal_lines(tmp_path / "node.log")
+    assert len(lines) == 1 and f"cannot start: {path}: " in lines[0], text[-2000:]
+
+
+def test_any_other_error_while_starting_is_one_fatal_line(tmp_path):
+    """An error ``main`` does not expect from the start-up (here a TypeError from reading the
+    calibration_file, as a parser bug would give) is one FATAL line naming its type, exit 1."""
+    path = tmp_path / "cal.yaml"
+    path.write_text("format: rbc_registration_calibration\n")
+    program = ("import sys; from rbc_registration.ros import saved, node\n"
+               "def load(path, settings): raise TypeError(f'unhashable type: list ({path})')\n"
+               "saved.load = load\n"
+               "node.main(sys.argv)\n")
+    proc = start_test_node("rbc_fatal_other", None, log=open(tmp_path / "node.log", "w"),
+                           command=[sys.executable, "-c", program], calibration_file=str(path))
+    try:
+        assert proc.wait(timeout=60) == 1
+    finally:
+        stop_process(proc)
+    lines, text = fatal_lines(tmp_path / "node.log")
+    assert len(lines) == 1 and f"cannot start: TypeError: unhashable type: list ({path})" in \
+        lines[0], text[-2000:]
 
 
 def test_a_malformed_ros_argument_is_one_fatal_line(tmp_path):
