@@ -126,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
         print("evaluate: interrupted", file=sys.stderr)
         return 130
     print_summary(ev)
+    for line in ev.warnings:
+        warn("evaluate", line)
     from ..core.scale import implausible_metres
     large = implausible_metres(ev.model.destination)
     if large:

@@ -41,6 +41,8 @@ class Evaluation(NamedTuple):
     report: dict[str, Any]
     rejected: dict[str, int]
     notes: tuple[str, ...]
+    #: Lines to check, each a ``warning:`` line of ``evaluate`` (e.g. duplicates dropped).
+    warnings: tuple[str, ...] = ()
 
 
 def evaluate_contents(contents: BagContents, settings: Settings,
@@ -63,7 +65,7 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                      "targets_source": targets.source if targets else None,
                      "other_topics": dict(contents.other_topics)}
     return Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
-                      contents.count_mismatches + ev.notes)
+                      contents.count_mismatches + ev.notes, contents.warnings)
 
 
 # -- report directory --------------------------------------------------------------------------

@@ -250,3 +250,50 @@ def test_point_stamps_that_repeat_are_noted(tmp_path, capsys):
     cli.main(["evaluate", str(bag), "--quiet"])
     out = capsys.readouterr().out
     assert out.count("point stamps repeat") == 2, out      # once per stream
+
+
+def test_exact_duplicate_pairs_are_dropped_with_one_warning(tmp_path, capsys):
+    """A bag recorded twice (every FiducialPair again, same id, stamp and points) counted each
+    message as a repeat: sigma halved, or 0 with rho inf for single measurements (a review). The
+    duplicates are dropped with one warning line naming their count and topic."""
+    msgs = list(cell_messages(make_cell("RA", seed=0)))
+    pairs = [m for m in msgs if m.topic == DEFAULT_TOPICS.fiducial_pairs]
+    write_bag(tmp_path / "once", msgs, progress=False)
+    write_bag(tmp_path / "twice", msgs + pairs, progress=False)
+    once = run_json(["evaluate", str(tmp_path / "once"), "--quiet"], tmp_path / "1.json")
+    assert "warning" not in capsys.readouterr().err
+    twice = run_json(["evaluate", str(tmp_path / "twice"), "--quiet"], tmp_path / "2.json")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert (f"warning: bag {tmp_path / 'twice'}: {DEFAULT_TOPICS.fiducial_pairs}: "
+            f"{len(pairs)} exact duplicate message(s) dropped") in err[0]
+    assert twice["n_measurements"] == once["n_measurements"] == len(pairs)
+    assert_same_numbers(exact_part(once), exact_part(twice))
+    assert twice["bag"]["messages"][DEFAULT_TOPICS.fiducial_pairs] == 2 * len(pairs)
+
+
+def test_one_id_and_stamp_with_other_points_is_refused(tmp_path, capsys):
+    msgs = list(cell_messages(make_cell("RA", seed=0)))
+    first = next(m for m in msgs if m.topic == DEFAULT_TOPICS.fiducial_pairs)
+    other = first._replace(xyz=(first.xyz[0] + 1e-4,) + first.xyz[1:])
+    write_bag(tmp_path / "bag", msgs + [other], progress=False)
+    assert cli.main(["evaluate", str(tmp_path / "bag"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    sec, nsec = divmod(first.stamp_ns, 1_000_000_000)
+    assert (f"{DEFAULT_TOPICS.fiducial_pairs}: fiducial {first.fiducial_id!r} at stamp "
+            f"{sec}.{nsec:09d} s: two messages with other points") in err[0]
+    assert "Traceback" not in err[0]
+
+
+def test_unstamped_pairs_are_never_duplicates():
+    """Stamp 0 (not stamped) tells no measurement apart: such messages are all kept."""
+    from rbc_registration.pipeline.inputs import PairMessage
+    from rbc_registration.pipeline.offline import drop_duplicate_pairs
+
+    m = PairMessage(0, 0.0, "F", (1.0, 2.0, 0.0), "tracker", (1.0, 2.0, 0.0), "world", 0)
+    kept, n = drop_duplicate_pairs([m, m, m._replace(working=(1.1, 2.0, 0.0))])
+    assert n == 0 and len(kept) == 3
+    stamped = m._replace(stamp_s=1.0, stamp_ns=1_000_000_000)
+    kept, n = drop_duplicate_pairs([stamped, stamped, stamped._replace(fiducial_id="G")])
+    assert n == 1 and [k.fiducial_id for k in kept] == ["F", "G"]

@@ -18,6 +18,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError
 
 from ...core.constants import DESTINATION, WORKING
+from ...pipeline.offline import DuplicateConflict, drop_duplicate_pairs
 from ..progress import Progress
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
@@ -78,6 +79,10 @@ def topic_types(reader: Reader) -> dict[str, str]:
 
 def _stamp(header: Any) -> float:
     return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+def _stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
 def _xyz(p: Any) -> tuple[float, float, float]:
@@ -145,7 +150,8 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                 if conn.topic in (topics.fiducial_pairs, topics.targets):
                     pair = PairMessage(log_ns, _stamp(msg.header), msg.fiducial_id,
                                        _xyz(msg.working_point), msg.header.frame_id,
-                                       _xyz(msg.destination_point), msg.destination_frame_id)
+                                       _xyz(msg.destination_point), msg.destination_frame_id,
+                                       _stamp_ns(msg.header))
                     (ins if conn.topic == topics.fiducial_pairs else tgts).append(pair)
                 else:
                     stream = WORKING if conn.topic == topics.working_point else DESTINATION
@@ -158,9 +164,17 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
             raise BagError(f"bag {path}: truncated or corrupt after {k} message(s): "
                            f"{_describe(exc)}") from None
         bar.done()
+    try:
+        ins, n_dup = drop_duplicate_pairs(ins)
+    except DuplicateConflict as exc:
+        raise BagError(f"bag {path}: {topics.fiducial_pairs}: {exc}") from None
+    warnings = (f"bag {path}: {topics.fiducial_pairs}: {n_dup} exact duplicate message(s) "
+                "dropped (the id, stamp and points of an earlier message: a bag recorded twice "
+                "or a topic republished?); each is one measurement, not a repeat",) \
+        if n_dup else ()
     other = {t: ty for t, ty in types.items() if t not in expected}
     return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other,
-                       count_mismatches(path, conns, counts))
+                       count_mismatches(path, conns, counts), warnings)
 
 
 def count_mismatches(path: Union[str, Path], conns: Sequence[Any], read: dict[str, int]

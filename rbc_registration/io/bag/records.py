@@ -62,9 +62,10 @@ DEFAULT_TOPICS = Topics.for_node()
 
 
 class BagContents(NamedTuple):
-    """What :func:`read_bag` found: the node's inputs in bag (receive-time) order, the targets,
-    message counts per topic, the other topics of the bag (name -> type) and a line per topic
-    whose metadata count differs from the messages read."""
+    """What :func:`read_bag` found: the node's inputs in bag (receive-time) order (exact
+    duplicates of ``FiducialPair`` messages dropped), the targets, message counts per topic (as
+    read), the other topics of the bag (name -> type), a line per topic whose metadata count
+    differs from the messages read, and warnings (the duplicates dropped)."""
 
     path: Path
     inputs: tuple[Union[PairMessage, PointMessage], ...]
@@ -72,6 +73,7 @@ class BagContents(NamedTuple):
     counts: dict[str, int]
     other_topics: dict[str, str]
     count_mismatches: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
 
 class RawMessage(NamedTuple):
