@@ -65,7 +65,7 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                      "targets_source": targets.source if targets else None,
                      "other_topics": dict(contents.other_topics)}
     return Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
-                      contents.count_mismatches + ev.notes, contents.warnings)
+                      contents.count_mismatches + contents.notes + ev.notes, contents.warnings)
 
 
 # -- report directory --------------------------------------------------------------------------

@@ -124,11 +124,16 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
             raise BagError(f"bag {path}: none of the input topics {', '.join(topics[:3])} "
                            f"(topics in the bag: {listing}); name them with --fiducial-topic, "
                            "--working-topic, --destination-topic")
-        points = [t for t in topics[1:3] if t in types]
+        # A topic listed without messages (``ros2 bag record -a`` lists every topic it saw)
+        # decides nothing: the point streams count by their messages.
+        listed = listed_counts(reader.connections)
+        empty = [t for t in topics[:3] if t in types and not listed[t]]
+        points = [t for t in topics[1:3] if listed.get(t)]
         if len(points) == 1:
-            missing = set(topics[1:3]) - set(points)
-            raise BagError(f"bag {path}: has {points[0]} but not {missing.pop()}: points cannot "
-                           "be paired")
+            missing = (set(topics[1:3]) - set(points)).pop()
+            raise BagError(f"bag {path}: has {points[0]} but not {missing}"
+                           f"{' (listed with 0 messages)' if missing in types else ''}: points "
+                           "cannot be paired")
         wanted = [t for t in expected if t in types]
         check_definitions(reader, store, wanted)
         conns = [c for c in reader.connections if c.topic in wanted]
@@ -168,13 +173,22 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
         ins, n_dup = drop_duplicate_pairs(ins)
     except DuplicateConflict as exc:
         raise BagError(f"bag {path}: {topics.fiducial_pairs}: {exc}") from None
+    notes = tuple(f"bag {path}: {t}: listed with 0 messages (ignored)" for t in empty)
     warnings = (f"bag {path}: {topics.fiducial_pairs}: {n_dup} exact duplicate message(s) "
                 "dropped (the id, stamp and points of an earlier message: a bag recorded twice "
                 "or a topic republished?); each is one measurement, not a repeat",) \
         if n_dup else ()
     other = {t: ty for t, ty in types.items() if t not in expected}
     return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other,
-                       count_mismatches(path, conns, counts), warnings)
+                       count_mismatches(path, conns, counts), warnings, notes)
+
+
+def listed_counts(conns: Sequence[Any]) -> dict[str, int]:
+    """``{topic: messages}`` as the bag's metadata lists them (its connections' counts)."""
+    listed: dict[str, int] = {}
+    for c in conns:
+        listed[c.topic] = listed.get(c.topic, 0) + int(c.msgcount)
+    return listed
 
 
 def count_mismatches(path: Union[str, Path], conns: Sequence[Any], read: dict[str, int]
@@ -182,9 +196,7 @@ def count_mismatches(path: Union[str, Path], conns: Sequence[Any], read: dict[st
     """One line per topic whose count in the bag's metadata (``message_count`` of its
     connections) differs from the messages read: the storage lost messages, or another storage
     file was put in its place."""
-    listed: dict[str, int] = {}
-    for c in conns:
-        listed[c.topic] = listed.get(c.topic, 0) + int(c.msgcount)
+    listed = listed_counts(conns)
     return tuple(f"bag {path}: {topic}: the metadata lists {n} message(s), {read.get(topic, 0)} "
                  "were read (the storage and its metadata disagree: messages lost?)"
                  for topic, n in sorted(listed.items()) if n != read.get(topic, 0))

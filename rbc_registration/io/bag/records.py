@@ -65,7 +65,8 @@ class BagContents(NamedTuple):
     """What :func:`read_bag` found: the node's inputs in bag (receive-time) order (exact
     duplicates of ``FiducialPair`` messages dropped), the targets, message counts per topic (as
     read), the other topics of the bag (name -> type), a line per topic whose metadata count
-    differs from the messages read, and warnings (the duplicates dropped)."""
+    differs from the messages read, warnings (the duplicates dropped) and notes (an input topic
+    listed with 0 messages)."""
 
     path: Path
     inputs: tuple[Union[PairMessage, PointMessage], ...]
@@ -74,6 +75,7 @@ class BagContents(NamedTuple):
     other_topics: dict[str, str]
     count_mismatches: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
 
 class RawMessage(NamedTuple):
