@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Callable, NamedTuple, Optional
+from typing import Any, Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -64,8 +64,16 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                      "rejected": ev.rejected, "disabled": list(ev.fiducials.disabled_ids),
                      "targets_source": targets.source if targets else None,
                      "other_topics": dict(contents.other_topics)}
-    return Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
-                      contents.count_mismatches + contents.notes + ev.notes, contents.warnings)
+    out = Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
+                     contents.count_mismatches + contents.notes + ev.notes)
+    return with_warnings(out, contents.warnings + ((ev.warning,) if ev.warning else ()))
+
+
+def with_warnings(ev: Evaluation, lines: Sequence[str]) -> Evaluation:
+    """``ev`` with ``lines`` added to its warnings and to its report's ``warnings`` (so that
+    ``report.json`` and ``report.md`` hold what the command warned about)."""
+    warnings = ev.warnings + tuple(lines)
+    return ev._replace(warnings=warnings, report={**ev.report, "warnings": list(warnings)})
 
 
 # -- report directory --------------------------------------------------------------------------
@@ -117,6 +125,10 @@ def _mm(v: Optional[float], digits: int = 4) -> str:
     return "n/a" if v is None or not math.isfinite(v) else f"{v * MM:.{digits}g}"
 
 
+def _norm(v: Optional[list]) -> Optional[float]:
+    return None if v is None else math.hypot(*v)
+
+
 def _percent(v: Optional[float]) -> str:
     return "n/a" if v is None else f"{100 * v:.0f}%"
 
@@ -157,6 +169,7 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
              f"{rep['dim']}D; rejected: " + (", ".join(f"{n} {r}" for r, n in
                                                       bag["rejected"].items() if n) or "none")
              + ". Lengths in mm (report.json: metres).", "",
+             *[f"**Warning**: {md_text(w)}" for w in ev.warnings], *([""] if ev.warnings else []),
              *[f"Note: {md_text(note)}" for note in ev.notes], *([""] if ev.notes else []),
              "## Table 1 values", "",
              "| sigma | sigma_axis | sigma_L0 | rho | sigma_L1 | sigma_L2 | rho rule |",
@@ -180,6 +193,17 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
                   f"{_mm(t['tre_bound'])} | {_mm(t['tre_u'])} | {_mm(t['tre_c'])} | "
                   f"{_mm(t['tre_c'] - t['tre_u'], 3)} | {'yes' if t['inside_hull'] else 'no'} |"
                   for t in rep["targets"]]
+        lines.append("")
+    elif rep["targets"]:
+        lines += ["## Targets", "",
+                  f"{len(rep['targets'])} targets without truth (TRE not computed): the "
+                  "correction |eps| of each and the expected error of the point to use (per the "
+                  "decision).", "",
+                  "| target | correction \\|eps\\| | expected TRE | 95 % bound | inside hull |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {md_text(t['id'])} | {_mm(_norm(t['correction']))} | "
+                  f"{_mm(t['expected_tre'])} | {_mm(t['tre_bound'])} | "
+                  f"{'yes' if t['inside_hull'] else 'no'} |" for t in rep["targets"]]
         lines.append("")
     lines += [f"![{name}]({name})" for name in images]
     return "\n".join(lines + [""])

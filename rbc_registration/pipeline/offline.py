@@ -42,7 +42,8 @@ class Accumulated(NamedTuple):
 
 
 class OfflineModel(NamedTuple):
-    """The outcome of :func:`evaluate_inputs`."""
+    """The outcome of :func:`evaluate_inputs`; ``warning``: the model state's (a fiducial whose
+    held-out error stands out, :attr:`~.state.ModelState.warning`; "" when none)."""
 
     model: RbcModel
     fiducials: FiducialSet
@@ -50,6 +51,7 @@ class OfflineModel(NamedTuple):
     targets: Optional[Targets]
     rejected: dict[str, int]
     notes: tuple[str, ...]
+    warning: str = ""
 
 
 class _Log:
@@ -225,4 +227,5 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
     notes = ("targets have no truth: TRE not computed",) \
         if targets is not None and targets.destination is None else ()
     notes += acc.stamp_warnings
-    return OfflineModel(state.model, acc.fiducials, settings, targets, acc.rejected, notes)
+    return OfflineModel(state.model, acc.fiducials, settings, targets, acc.rejected, notes,
+                        state.warning)

@@ -297,3 +297,52 @@ def test_unstamped_pairs_are_never_duplicates():
     stamped = m._replace(stamp_s=1.0, stamp_ns=1_000_000_000)
     kept, n = drop_duplicate_pairs([stamped, stamped, stamped._replace(fiducial_id="G")])
     assert n == 1 and [k.fiducial_id for k in kept] == ["F", "G"]
+
+
+def test_warnings_are_in_report_json_and_report_md(tmp_path, capsys):
+    """The warnings went to stderr only (a review): report.json and report.md did not say that
+    the bag looks like millimetres, or which fiducial stands out. Each is in both now, once."""
+    def mm(m):
+        return m._replace(xyz=tuple(1e3 * v for v in m.xyz),
+                          destination=tuple(1e3 * v for v in m.destination))
+    bag, out = tmp_path / "bag", tmp_path / "out"
+    write_bag(bag, [mm(m) for m in cell_messages(make_cell("RA", seed=0))], progress=False)
+    report = run_json(["evaluate", str(bag), "--quiet", "--out", str(out)], tmp_path / "e.json")
+    err = capsys.readouterr().err
+    assert report["warnings"] and all(w in err for w in report["warnings"])
+    assert any("the fiducials' RMS distance from their centroid is" in w
+               for w in report["warnings"])
+    assert json.loads((out / "report.json").read_text())["warnings"] == report["warnings"]
+    md = (out / "report.md").read_text()
+    assert all(f"**Warning**: {escape.markdown(w)}" in md for w in report["warnings"])
+
+
+def test_a_blunder_is_warned_once_and_reported(tmp_path, capsys):
+    """One fiducial's points 5 mm off (a wrong hole): one warning line (the model state's; the
+    check ran twice before), in the reports too."""
+    fid = DEFAULT_TOPICS.fiducial_pairs
+    msgs = [m._replace(xyz=(m.xyz[0] + 0.005,) + m.xyz[1:])
+            if m.topic == fid and m.fiducial_id == "F100" else m
+            for m in cell_messages(make_cell("RA", seed=0))]
+    write_bag(tmp_path / "bag", msgs, progress=False)
+    report = run_json(["evaluate", str(tmp_path / "bag"), "--quiet"], tmp_path / "e.json")
+    err = capsys.readouterr().err
+    assert err.count("held-out error") == 1 and "fiducial F100: held-out error" in err, err
+    assert len(report["warnings"]) == 1 and "fiducial F100: held-out error" in report["warnings"][0]
+
+
+def test_targets_without_truth_get_a_table_of_corrections(tmp_path):
+    cell = make_cell("RA", seed=0)
+    nan = (float("nan"),) * 3
+    msgs = [m._replace(destination=nan) if m.topic == DEFAULT_TOPICS.targets else m
+            for m in cell_messages(cell)]
+    write_bag(tmp_path / "bag", msgs, progress=False)
+    out = tmp_path / "out"
+    assert cli.main(["evaluate", str(tmp_path / "bag"), "--quiet", "--out", str(out)]) == 0
+    md = (out / "report.md").read_text()
+    report = json.loads((out / "report.json").read_text())
+    assert "## Targets" in md and "TRE_u" not in md
+    first = report["targets"][0]
+    eps = 1e3 * float(np.linalg.norm(first["correction"]))
+    assert f"| {first['id']} | {eps:.4g} | {1e3 * first['expected_tre']:.4g} |" in md
+    assert md.count("\n| T") == len(cell.target_ids) == 80
