@@ -19,6 +19,7 @@ from ..core.accumulator import FiducialSet
 from ..core.constants import MM_PER_M as MM
 from ..core.evaluation import leave_one_out, target_errors
 from ..core.mismatch import pairwise_mismatch
+from ..core.noise import format_rho
 from ..core.model import RbcModel
 from ..pipeline.offline import evaluate_inputs
 from ..pipeline.settings import Settings
@@ -125,6 +126,10 @@ def _mm(v: Optional[float], digits: int = 4) -> str:
     return "n/a" if v is None or not math.isfinite(v) else f"{v * MM:.{digits}g}"
 
 
+def _rho(m: RbcModel) -> str:
+    return format_rho(m.rho, m.config.rho_reject, m.config.rho_apply)
+
+
 def _norm(v: Optional[list]) -> Optional[float]:
     return None if v is None else math.hypot(*v)
 
@@ -133,15 +138,18 @@ def _percent(v: Optional[float]) -> str:
     return "n/a" if v is None else f"{100 * v:.0f}%"
 
 
-def decision_markdown(decision: dict[str, Any]) -> list[str]:
+def decision_markdown(decision: dict[str, Any], reason: Optional[str] = None) -> list[str]:
     """The decision of a report (metres) as a Markdown section: mode, method, reason and each
-    candidate's cross-validated error in mm."""
+    candidate's cross-validated error in mm.
+
+    :param reason: the reason with its lengths in mm (``Decision.reason_in``); default: the
+        report's (metres)."""
     folds = decision["folds"]
     lines = ["## Decision", "",
              f"Mode **{decision['mode']}**: targets get **{decision['method']}** (corrections "
              f"{'applied' if decision['apply'] else 'not applied'}; "
              f"{'confident' if decision['confident'] else 'uncertain'}). "
-             f"{md_text(decision['reason'])}",
+             f"{md_text(decision['reason'] if reason is None else reason)}",
              "", f"Cross-validated error per candidate ({folds['kind']}, {folds['n_folds']} "
              f"folds; mm):", "",
              "| candidate | median | rms | 95 % bound | Wilcoxon W+ | p-value |",
@@ -175,10 +183,11 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
              "| sigma | sigma_axis | sigma_L0 | rho | sigma_L1 | sigma_L2 | rho rule |",
              "|---|---|---|---|---|---|---|",
              f"| {_mm(m.sigma, 3)} ({m.sigma_source}) | {_mm(m.sigma_axis, 3)} | "
-             f"{_mm(sl[0], 3)} | {'n/a' if m.rho is None else f'{m.rho:.3g}'} | "
+             f"{_mm(sl[0], 3)} | {'n/a' if m.rho is None else _rho(m)} | "
              f"{_mm(sl[1], 2)} | {_mm(sl[2], 2)} | {m.recommendation} |", "",
              f"FRE rms: uncorrected {_mm(m.uncorrected.fre_rms)}, corrected "
-             f"{_mm(m.corrected.fre_rms)}.", "", *decision_markdown(rep["decision"])]
+             f"{_mm(m.corrected.fre_rms)}.", "",
+             *decision_markdown(rep["decision"], m.decision.reason_in(MM))]
     if rep["targets"] and "tre_u" in rep["targets"][0]:
         s = rep["summary"]
         lines += ["## Targets", "",

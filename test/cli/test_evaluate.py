@@ -346,3 +346,18 @@ def test_targets_without_truth_get_a_table_of_corrections(tmp_path):
     eps = 1e3 * float(np.linalg.norm(first["correction"]))
     assert f"| {first['id']} | {eps:.4g} | {1e3 * first['expected_tre']:.4g} |" in md
     assert md.count("\n| T") == len(cell.target_ids) == 80
+
+
+def test_report_md_quotes_the_reason_in_mm(tmp_path):
+    write_bag(tmp_path / "bag", cell_messages(make_cell("RA", seed=0)), progress=False)
+    out = tmp_path / "out"
+    assert cli.main(["evaluate", str(tmp_path / "bag"), "--quiet", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    md = (out / "report.md").read_text()
+    cv = report["decision"]["cv"]
+    best = cv[report["decision"]["method"]]["median"]
+    metres = f"median error {best:.3g} vs {cv['uncorrected']['median']:.3g}"
+    assert metres in report["decision"]["reason"]
+    assert escape.markdown(f"median error {1e3 * best:.3g} vs "
+                           f"{1e3 * cv['uncorrected']['median']:.3g}") in md
+    assert escape.markdown(metres) not in md
