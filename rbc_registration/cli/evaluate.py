@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from ..io.escape import terminal
-from .options import add_model_options, refuse_outputs_onto_inputs, unit_mismatch_lines, warn
+from .options import (add_model_options, node_name, refuse_outputs_onto_inputs,
+                      unit_mismatch_lines, warn)
 
 #: The input topics that can be named, with what they carry.
 TOPIC_OPTIONS = (("fiducial", "fiducial_pairs", "FiducialPair"),
@@ -33,7 +34,7 @@ def add_parser(sub: Any) -> None:
     ev.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="a registration_node parameter, e.g. -p merge_radius:=0.002 (repeatable)")
     ev.add_argument("--loo", action="store_true", help="leave-one-out estimate over fiducials")
-    ev.add_argument("--node-name", default="registration_node",
+    ev.add_argument("--node-name", type=node_name, default="registration_node",
                     help="default topics are /NODE_NAME/fiducial_pairs etc.")
     for option, _, what in TOPIC_OPTIONS:
         ev.add_argument(f"--{option}-topic", metavar="TOPIC", help=f"{what} topic")

@@ -114,6 +114,17 @@ def warn_blunders(command: str, model: object, unit: str) -> None:
         warn(command, line)
 
 
+def node_name(text: str) -> str:
+    """An argument type: a valid ROS node name (``--node-name``; the topics are
+    ``/NAME/...``)."""
+    from ..io.bag.records import node_name_error
+
+    error = node_name_error(text)
+    if error:
+        raise argparse.ArgumentTypeError(error)
+    return text
+
+
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:
     """An argument type: a comma-separated, non-empty list of ``what`` (e.g. fiducial ids)."""
     def parse(text: str) -> tuple[str, ...]:
