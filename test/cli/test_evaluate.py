@@ -174,7 +174,12 @@ def test_report_directory(tmp_path, capsys):
     rep = json.loads((out / "report.json").read_text())
     dec = rep["decision"]
     assert "## Decision" in md and f"targets get **{dec['method']}**" in md
-    assert escape.markdown(dec["reason"]) in md          # the reason, escaped like all text
+    # the reason, escaped like all text, its lengths (held-out medians) in mm as the report's
+    reason_mm = dec["reason"]
+    for c in dec["cv"].values():
+        if c["median"] is not None:
+            reason_mm = reason_mm.replace(f" {c['median']:.3g}", f" {1e3 * c['median']:.3g}")
+    assert reason_mm != dec["reason"] and escape.markdown(reason_mm) in md
     assert "![cv_errors.png](cv_errors.png)" in md
     for name in dec["cv"]:
         assert f"| {name} | {1e3 * dec['cv'][name]['median']:.4g} |" in md
