@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from ..io.escape import terminal
-from .options import (add_model_options, refuse_outputs_onto_inputs, warn, warn_blunders,
-                      warn_unit_mismatch)
+from .options import (add_model_options, node_name, refuse_outputs_onto_inputs,
+                      unit_mismatch_lines, warn)
 
 #: The input topics that can be named, with what they carry.
 TOPIC_OPTIONS = (("fiducial", "fiducial_pairs", "FiducialPair"),
@@ -34,7 +34,7 @@ def add_parser(sub: Any) -> None:
     ev.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="a registration_node parameter, e.g. -p merge_radius:=0.002 (repeatable)")
     ev.add_argument("--loo", action="store_true", help="leave-one-out estimate over fiducials")
-    ev.add_argument("--node-name", default="registration_node",
+    ev.add_argument("--node-name", type=node_name, default="registration_node",
                     help="default topics are /NODE_NAME/fiducial_pairs etc.")
     for option, _, what in TOPIC_OPTIONS:
         ev.add_argument(f"--{option}-topic", metavar="TOPIC", help=f"{what} topic")
@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.bag.reader import read_bag
     from ..io.csv_io import read_targets
     from ..io.evaluation import (REPORT_FILES, evaluate_contents, print_summary,
-                                 write_report_dir)
+                                 with_warnings, write_report_dir)
     from ..io.report import write_json
     from ..pipeline.offline import infer_dimension, settings_for
     from ..pipeline.targets import Targets
@@ -128,13 +128,13 @@ def run(args: argparse.Namespace) -> int:
     print_summary(ev)
     from ..core.scale import implausible_metres
     large = implausible_metres(ev.model.destination)
-    if large:
-        warn("evaluate", large)
-    warn_unit_mismatch("evaluate", ev.model.working,
-                       ev.targets.working if ev.targets is not None else None, ev.report,
-                       ev.model.destination,
-                       ev.targets.destination if ev.targets is not None else None)
-    warn_blunders("evaluate", ev.model, "m")
+    # Every warning goes to stderr and into report.json / report.md (the blunder line is the
+    # model state's, ev.warnings already).
+    ev = with_warnings(ev, ([large] if large else []) + unit_mismatch_lines(
+        ev.model.working, ev.targets.working if ev.targets is not None else None, ev.report,
+        ev.model.destination, ev.targets.destination if ev.targets is not None else None))
+    for line in ev.warnings:
+        warn("evaluate", line)
     if args.json:
         write_json(ev.report, args.json)
         print(f"wrote {terminal(args.json)}")

@@ -71,7 +71,14 @@ def warn(command: str, text: str) -> None:
 
 def warn_unit_mismatch(command: str, fiducials: object, targets: object, report: dict,
                        destination: object = None, truth: object = None) -> None:
-    """One warning line when every target is out of the hull at a scale ~100x or more off the
+    """One warning line per line of :func:`unit_mismatch_lines`."""
+    for line in unit_mismatch_lines(fiducials, targets, report, destination, truth):
+        warn(command, line)
+
+
+def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
+                        destination: object = None, truth: object = None) -> list[str]:
+    """One line when every target is out of the hull at a scale ~100x or more off the
     fiducials' (:func:`rbc_registration.core.scale.unit_mismatch`); another when the targets'
     truth is that far off the fiducials' destination points.
 
@@ -83,16 +90,18 @@ def warn_unit_mismatch(command: str, fiducials: object, targets: object, report:
     from ..core.scale import unit_mismatch
 
     if targets is None or not report.get("targets"):
-        return
+        return []
+    lines = []
     text = unit_mismatch(fiducials, targets, [t["inside_hull"] for t in report["targets"]])
     if text:
-        warn(command, text)
+        lines.append(text)
     if truth is not None and destination is not None:
         # no hull in the destination frame: the size ratio alone (100x) decides
         text = unit_mismatch(destination, truth, [False] * len(report["targets"]),
                              "target truth")
         if text:
-            warn(command, "the targets' truth: " + text)
+            lines.append("the targets' truth: " + text)
+    return lines
 
 
 def warn_blunders(command: str, model: object, unit: str) -> None:
@@ -103,6 +112,17 @@ def warn_blunders(command: str, model: object, unit: str) -> None:
     line = describe_blunders(blunders(model), unit)
     if line:
         warn(command, line)
+
+
+def node_name(text: str) -> str:
+    """An argument type: a valid ROS node name (``--node-name``; the topics are
+    ``/NAME/...``)."""
+    from ..io.bag.records import node_name_error
+
+    error = node_name_error(text)
+    if error:
+        raise argparse.ArgumentTypeError(error)
+    return text
 
 
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:

@@ -9,7 +9,7 @@ from typing import Any
 from ..core.constants import CELLS, MAX_REPEATS
 from ..io.bag.records import PERIODS, STORAGES
 from ..io.escape import terminal
-from .options import integer_in, number_in, seed
+from .options import integer_in, node_name, number_in, seed
 
 
 def add_parser(sub: Any) -> None:
@@ -28,7 +28,7 @@ def add_parser(sub: Any) -> None:
                     help="fiducials as PointStamped pairs without ids instead of FiducialPair")
     sb.add_argument("--working-frame", default="tracker")
     sb.add_argument("--destination-frame", default="world")
-    sb.add_argument("--node-name", default="registration_node",
+    sb.add_argument("--node-name", type=node_name, default="registration_node",
                     help="topics are /NODE_NAME/fiducial_pairs etc.")
     sb.add_argument("--quiet", action="store_true", help="no progress output")
     sb.set_defaults(func=run)

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .constants import CANDIDATES, UNCORRECTED, DecisionMode
 from .crossval import CrossValidation, FoldScheme
-from .noise import Assessment
+from .noise import Assessment, format_rho
 
 #: Family-wise level of the test: a correction is applied only when it beats the uncorrected
 #: registration with 95 % confidence (one-sided p < 0.05, Bonferroni over the corrected
@@ -149,6 +149,17 @@ class Decision:
     rho_recommendation: str
     error_model: ErrorModel
     cross_validation: CrossValidation = field(repr=False)
+    #: ``reason`` with ``{0}``, ``{1}``, ... where it quotes lengths (held-out errors, unit of
+    #: the points), and those lengths: :meth:`reason_in` shows them in another unit.
+    reason_template: str = field(default="", repr=False, compare=False)
+    reason_lengths: tuple[float, ...] = field(default=(), repr=False, compare=False)
+
+    def reason_in(self, scale: float) -> str:
+        """``reason`` with its lengths times ``scale`` (e.g. 1000: metres to mm), formatted as
+        in ``reason``; ``reason`` itself without lengths to convert."""
+        if not self.reason_template:
+            return self.reason
+        return self.reason_template.format(*(_g(v * scale) for v in self.reason_lengths))
 
     def candidate(self, method: str) -> Optional[CandidateScore]:
         """The score of ``method``, None when it was not evaluated."""
@@ -238,35 +249,44 @@ def _preferred(winners: list[CandidateScore], errors: Mapping[str, NDArray[np.fl
 
 
 def _cv_choice(scores: list[CandidateScore], errors: Mapping[str, NDArray[np.float64]], n: int,
-               resolution: float) -> tuple[str, str, bool]:
+               resolution: float) -> tuple[str, str, bool, tuple[float, ...]]:
+    """The method, the reason as a template (``{k}``: the k-th length), whether confident, and
+    the lengths the reason quotes."""
+    lengths: list[float] = []
+
+    def length(v: float) -> str:
+        lengths.append(v)
+        return f"{{{len(lengths) - 1}}}"
+
     base = scores[0]
     if not base.available:
-        return UNCORRECTED, (f"Cross-validation was not possible ({base.note}), so the "
-                             f"uncorrected registration is used."), False
+        note = base.note.replace("{", "{{").replace("}", "}}")
+        return UNCORRECTED, (f"Cross-validation was not possible ({note}), so the "
+                             f"uncorrected registration is used."), False, ()
     tested = [s for s in scores[1:] if s.available and s.p_value is not None]
     if not tested:
         return UNCORRECTED, ("No correction method could be cross-validated, so the uncorrected "
-                             "registration is used."), True
+                             "registration is used."), True, ()
     level = SIGNIFICANCE / len(tested)
     winners = [s for s in tested if s.p_value < level]
     if winners:
         best = _preferred(winners, errors, resolution)
         lower = [s for s in winners if s.cv_median < best.cv_median]
-        kept = "".join(f"; {s.method}'s lower median {_g(s.cv_median)} was not significantly "
-                       f"smaller than {best.method}'s errors" for s in lower)
-        return best.method, (
-            f"{best.method.capitalize()} corrections predicted the {n} held-out fiducials better "
-            f"than the uncorrected registration (median error {_g(best.cv_median)} vs "
-            f"{_g(base.cv_median)}, one-sided Wilcoxon p = {best.p_value:.2g} < {_g(level)}"
-            f"{kept}), so they are applied."), True
+        head = (f"{best.method.capitalize()} corrections predicted the {n} held-out fiducials "
+                f"better than the uncorrected registration (median error "
+                f"{length(best.cv_median)} vs {length(base.cv_median)}, one-sided Wilcoxon p = "
+                f"{best.p_value:.2g} < {_g(level)}")
+        kept = "".join(f"; {s.method}'s lower median {length(s.cv_median)} was not "
+                       f"significantly smaller than {best.method}'s errors" for s in lower)
+        return best.method, f"{head}{kept}), so they are applied.", True, tuple(lengths)
     best = min(tested, key=lambda s: s.cv_median)
     # a gain below the rounding of the errors (exact data) is no gain either
     confident = best.cv_median > (1.0 - RELEVANT_GAIN) * base.cv_median - resolution
     return UNCORRECTED, (
         f"No correction beat the uncorrected registration with {_g(100 * (1 - SIGNIFICANCE))} % "
         f"confidence on the {n} held-out fiducials (best: {best.method}, median error "
-        f"{_g(best.cv_median)} vs {_g(base.cv_median)}, p = {best.p_value:.2g}), so the "
-        f"uncorrected registration is used."), confident
+        f"{length(best.cv_median)} vs {length(base.cv_median)}, p = {best.p_value:.2g}), so the "
+        f"uncorrected registration is used."), confident, tuple(lengths)
 
 
 def _rho_choice(assessment: Assessment, configured: str, rho_reject: float,
@@ -276,13 +296,14 @@ def _rho_choice(assessment: Assessment, configured: str, rho_reject: float,
         return UNCORRECTED, ("The paper's rho rule needs sigma (repeated measurements, sigma or "
                              "sigma_axis), which is unknown, so the uncorrected registration is "
                              "used."), False
+    shown = format_rho(rho, rho_reject, rho_apply)
     if rec == "apply":
-        return configured, (f"The paper's rule: rho = {_g(rho)} >= {_g(rho_apply)}, so "
+        return configured, (f"The paper's rule: rho = {shown} >= {_g(rho_apply)}, so "
                             f"{configured} corrections are applied."), True
     if rec == "do_not_apply":
-        return UNCORRECTED, (f"The paper's rule: rho = {_g(rho)} < {_g(rho_reject)}, so the "
+        return UNCORRECTED, (f"The paper's rule: rho = {shown} < {_g(rho_reject)}, so the "
                              f"uncorrected registration is used."), True
-    return UNCORRECTED, (f"The paper's rule: rho = {_g(rho)} is between {_g(rho_reject)} and "
+    return UNCORRECTED, (f"The paper's rule: rho = {shown} is between {_g(rho_reject)} and "
                          f"{_g(rho_apply)} (uncertain), so the uncorrected registration is "
                          f"used."), False
 
@@ -306,11 +327,13 @@ def decide(mode: DecisionMode, cv: CrossValidation, configured: str, assessment:
                          f"got {configured!r}")
     evaluated = [c for c in CANDIDATES if c in cv.errors or c in cv.unavailable]
     scores = [_score(cv, c) for c in evaluated]
+    template, lengths = "", ()
     if mode is DecisionMode.CV:
         if not scores or scores[0].method != UNCORRECTED:
             scores.insert(0, _score(cv, UNCORRECTED))
-        method, reason, confident = _cv_choice(scores, cv.errors, _held_out_count(cv),
-                                               cv.resolution)
+        method, template, confident, lengths = _cv_choice(scores, cv.errors,
+                                                          _held_out_count(cv), cv.resolution)
+        reason = template.format(*(_g(v) for v in lengths))
     elif mode is DecisionMode.RHO:
         method, reason, confident = _rho_choice(assessment, configured, rho_reject, rho_apply)
     elif mode is DecisionMode.ON:
@@ -321,7 +344,7 @@ def decide(mode: DecisionMode, cv: CrossValidation, configured: str, assessment:
         reason = "Corrections are off (decision mode 'off'): the uncorrected registration is used."
     return Decision(mode, method, method != UNCORRECTED, reason, confident, tuple(scores),
                     cv.scheme, SIGNIFICANCE, assessment.rho, assessment.recommendation,
-                    error_model(cv, method), cv)
+                    error_model(cv, method), cv, template, lengths)
 
 
 def _held_out_count(cv: CrossValidation) -> int:

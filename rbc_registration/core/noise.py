@@ -152,3 +152,21 @@ def assess(sigma_l0: float, sigma: Optional[float], rho_reject: float = 1.0,
     if rho < rho_reject:
         return Assessment(rho, "do_not_apply")
     return Assessment(rho, "uncertain")
+
+
+def format_against(value: float, thresholds: Sequence[float], digits: int = 3) -> str:
+    """``value`` to ``digits`` significant digits, or more when the rounded number would lie on
+    the other side of a threshold than the value (``>=``, as the rho rule compares): 2.496
+    against 2.5 shows as ``2.496``, not ``2.5``; the number shown agrees with the verdict."""
+    text = f"{value:.{digits}g}"
+    while math.isfinite(value) and digits < 17 and any(
+            (float(text) >= t) != (value >= t) for t in thresholds):
+        digits += 1
+        text = f"{value:.{digits}g}"
+    return text
+
+
+def format_rho(rho: float, rho_reject: float = 1.0, rho_apply: float = 2.5,
+               digits: int = 3) -> str:
+    """rho as every report shows it: :func:`format_against` its rule's thresholds."""
+    return format_against(rho, (rho_reject, rho_apply), digits)

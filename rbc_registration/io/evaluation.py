@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Callable, NamedTuple, Optional
+from typing import Any, Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from ..core.accumulator import FiducialSet
 from ..core.constants import MM_PER_M as MM
 from ..core.evaluation import leave_one_out, target_errors
 from ..core.mismatch import pairwise_mismatch
+from ..core.noise import format_rho
 from ..core.model import RbcModel
 from ..pipeline.offline import evaluate_inputs
 from ..pipeline.settings import Settings
@@ -41,6 +42,8 @@ class Evaluation(NamedTuple):
     report: dict[str, Any]
     rejected: dict[str, int]
     notes: tuple[str, ...]
+    #: Lines to check, each a ``warning:`` line of ``evaluate`` (e.g. duplicates dropped).
+    warnings: tuple[str, ...] = ()
 
 
 def evaluate_contents(contents: BagContents, settings: Settings,
@@ -65,8 +68,16 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                      "rejected": ev.rejected, "disabled": list(ev.fiducials.disabled_ids),
                      "targets_source": targets.source if targets else None,
                      "other_topics": dict(contents.other_topics)}
-    return Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
-                      contents.count_mismatches + ev.notes)
+    out = Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
+                     contents.count_mismatches + contents.notes + ev.notes)
+    return with_warnings(out, contents.warnings + ((ev.warning,) if ev.warning else ()))
+
+
+def with_warnings(ev: Evaluation, lines: Sequence[str]) -> Evaluation:
+    """``ev`` with ``lines`` added to its warnings and to its report's ``warnings`` (so that
+    ``report.json`` and ``report.md`` hold what the command warned about)."""
+    warnings = ev.warnings + tuple(lines)
+    return ev._replace(warnings=warnings, report={**ev.report, "warnings": list(warnings)})
 
 
 # -- report directory --------------------------------------------------------------------------
@@ -118,19 +129,30 @@ def _mm(v: Optional[float], digits: int = 4) -> str:
     return "n/a" if v is None or not math.isfinite(v) else f"{v * MM:.{digits}g}"
 
 
+def _rho(m: RbcModel) -> str:
+    return format_rho(m.rho, m.config.rho_reject, m.config.rho_apply)
+
+
+def _norm(v: Optional[list]) -> Optional[float]:
+    return None if v is None else math.hypot(*v)
+
+
 def _percent(v: Optional[float]) -> str:
     return "n/a" if v is None else f"{100 * v:.0f}%"
 
 
-def decision_markdown(decision: dict[str, Any]) -> list[str]:
+def decision_markdown(decision: dict[str, Any], reason: Optional[str] = None) -> list[str]:
     """The decision of a report (metres) as a Markdown section: mode, method, reason and each
-    candidate's cross-validated error in mm."""
+    candidate's cross-validated error in mm.
+
+    :param reason: the reason with its lengths in mm (``Decision.reason_in``); default: the
+        report's (metres)."""
     folds = decision["folds"]
     lines = ["## Decision", "",
              f"Mode **{decision['mode']}**: targets get **{decision['method']}** (corrections "
              f"{'applied' if decision['apply'] else 'not applied'}; "
              f"{'confident' if decision['confident'] else 'uncertain'}). "
-             f"{md_text(decision['reason'])}",
+             f"{md_text(decision['reason'] if reason is None else reason)}",
              "", f"Cross-validated error per candidate ({folds['kind']}, {folds['n_folds']} "
              f"folds; mm):", "",
              "| candidate | median | rms | 95 % bound | Wilcoxon W+ | p-value |",
@@ -158,15 +180,17 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
              f"{rep['dim']}D; rejected: " + (", ".join(f"{n} {r}" for r, n in
                                                       bag["rejected"].items() if n) or "none")
              + ". Lengths in mm (report.json: metres).", "",
+             *[f"**Warning**: {md_text(w)}" for w in ev.warnings], *([""] if ev.warnings else []),
              *[f"Note: {md_text(note)}" for note in ev.notes], *([""] if ev.notes else []),
              "## Table 1 values", "",
              "| sigma | sigma_axis | sigma_L0 | rho | sigma_L1 | sigma_L2 | rho rule |",
              "|---|---|---|---|---|---|---|",
              f"| {_mm(m.sigma, 3)} ({m.sigma_source}) | {_mm(m.sigma_axis, 3)} | "
-             f"{_mm(sl[0], 3)} | {'n/a' if m.rho is None else f'{m.rho:.3g}'} | "
+             f"{_mm(sl[0], 3)} | {'n/a' if m.rho is None else _rho(m)} | "
              f"{_mm(sl[1], 2)} | {_mm(sl[2], 2)} | {m.recommendation} |", "",
              f"FRE rms: uncorrected {_mm(m.uncorrected.fre_rms)}, corrected "
-             f"{_mm(m.corrected.fre_rms)}.", "", *decision_markdown(rep["decision"])]
+             f"{_mm(m.corrected.fre_rms)}.", "",
+             *decision_markdown(rep["decision"], m.decision.reason_in(MM))]
     if rep["targets"] and "tre_u" in rep["targets"][0]:
         s = rep["summary"]
         lines += ["## Targets", "",
@@ -181,6 +205,17 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
                   f"{_mm(t['tre_bound'])} | {_mm(t['tre_u'])} | {_mm(t['tre_c'])} | "
                   f"{_mm(t['tre_c'] - t['tre_u'], 3)} | {'yes' if t['inside_hull'] else 'no'} |"
                   for t in rep["targets"]]
+        lines.append("")
+    elif rep["targets"]:
+        lines += ["## Targets", "",
+                  f"{len(rep['targets'])} targets without truth (TRE not computed): the "
+                  "correction |eps| of each and the expected error of the point to use (per the "
+                  "decision).", "",
+                  "| target | correction \\|eps\\| | expected TRE | 95 % bound | inside hull |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {md_text(t['id'])} | {_mm(_norm(t['correction']))} | "
+                  f"{_mm(t['expected_tre'])} | {_mm(t['tre_bound'])} | "
+                  f"{'yes' if t['inside_hull'] else 'no'} |" for t in rep["targets"]]
         lines.append("")
     lines += [f"![{name}]({name})" for name in images]
     return "\n".join(lines + [""])

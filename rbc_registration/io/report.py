@@ -11,6 +11,7 @@ from numpy.typing import ArrayLike
 
 from ..core.evaluation import TargetErrors, target_errors
 from ..core.model import RbcModel
+from ..core.noise import format_rho
 from ..pipeline.jsonable import json_number as _num
 from ..pipeline.jsonable import json_vector as _vec
 from ..pipeline.jsonable import registration_json
@@ -58,6 +59,7 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
         "sigma_source": model.sigma_source,
         "sigma_L": [_num(v) for v in model.sigma_l],
         "rho": _num(model.rho),
+        "rho_thresholds": [cfg.rho_reject, cfg.rho_apply],
         "recommendation": model.recommendation,
         "decision": model.decision.to_dict(),
         "uncorrected": registration_json(model.uncorrected),
@@ -102,7 +104,9 @@ def _rho_text(report: dict[str, Any]) -> str:
     gives rho null there, which is infinite, not unknown."""
     if report["rho"] is None and report.get("sigma") == 0:
         return "inf (sigma = 0)"
-    return _fmt(report["rho"])
+    if report["rho"] is None or "rho_thresholds" not in report:
+        return _fmt(report["rho"])
+    return format_rho(report["rho"], *report["rho_thresholds"], digits=4)
 
 
 def _fmt(v: Any, unit: str = "") -> str:

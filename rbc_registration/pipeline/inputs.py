@@ -5,11 +5,12 @@ Units: metres, stamps in seconds, ``log_ns`` the receive time in nanoseconds.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 
 class PairMessage(NamedTuple):
-    """A ``FiducialPair`` (``fiducial_id`` may be empty: id assigned by proximity)."""
+    """A ``FiducialPair`` (``fiducial_id`` may be empty: id assigned by proximity);
+    ``stamp_ns``: the header stamp in whole nanoseconds when known (a bag's), else ``None``."""
 
     log_ns: int
     stamp_s: float
@@ -18,6 +19,7 @@ class PairMessage(NamedTuple):
     working_frame: str
     destination: tuple[float, float, float]
     destination_frame: str
+    stamp_ns: Optional[int] = None
 
 
 class PointMessage(NamedTuple):
@@ -29,3 +31,4 @@ class PointMessage(NamedTuple):
     xyz: tuple[float, float, float]
     frame_id: str
     stamp_s: float
+

@@ -17,6 +17,7 @@ import numpy as np
 from ..core.accumulator import FiducialAccumulator, FiducialSet
 from ..core.model import RbcModel
 from ..core.pairing import StampPairer
+from ..core.records import quote
 from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
 from .settings import Settings
@@ -41,7 +42,8 @@ class Accumulated(NamedTuple):
 
 
 class OfflineModel(NamedTuple):
-    """The outcome of :func:`evaluate_inputs`."""
+    """The outcome of :func:`evaluate_inputs`; ``warning``: the model state's (a fiducial whose
+    held-out error stands out, :attr:`~.state.ModelState.warning`; "" when none)."""
 
     model: RbcModel
     fiducials: FiducialSet
@@ -49,6 +51,7 @@ class OfflineModel(NamedTuple):
     targets: Optional[Targets]
     rejected: dict[str, int]
     notes: tuple[str, ...]
+    warning: str = ""
 
 
 class _Log:
@@ -149,6 +152,60 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
     return Targets(unique, working, truth if np.all(np.isfinite(truth)) else None, "bag")
 
 
+class DuplicateConflict(ValueError):
+    """Two ``FiducialPair`` messages with one fiducial id and one stamp but other points."""
+
+
+def _content(m: PairMessage) -> tuple[str, ...]:
+    """What a message says, bit for bit (``float.hex``: NaN equals NaN, nothing is rounded)."""
+    return (m.working_frame, m.destination_frame,
+            *(float(v).hex() for v in m.working + m.destination))
+
+
+def _stamp_text(m: PairMessage) -> str:
+    if m.stamp_ns is None:
+        return f"{m.stamp_s:.9f} s"
+    return f"{m.stamp_ns // 1_000_000_000}.{m.stamp_ns % 1_000_000_000:09d} s"
+
+
+def drop_duplicate_pairs(inputs: Sequence[Input]) -> tuple[list[Input], int]:
+    """The inputs without the exact duplicates of ``FiducialPair`` messages (a bag recorded
+    twice, a topic republished): a message with the id, stamp, frames and points (bit for bit)
+    of an earlier one is one measurement, not a repeat. Unstamped messages (stamp 0) cannot be
+    told apart and are kept.
+
+    :return: the inputs kept (in order; points pass unchanged) and the number dropped.
+    :raises DuplicateConflict: for two messages with one non-empty id and one stamp but other
+        points or frames (one stamp is one measurement: which one is right is not known).
+    """
+    seen: dict[tuple[str, object], dict[tuple[str, ...], PairMessage]] = {}
+    kept: list[Input] = []
+    for m in inputs:
+        stamp = m.stamp_ns if isinstance(m, PairMessage) and m.stamp_ns is not None \
+            else m.stamp_s
+        if not isinstance(m, PairMessage) or stamp == 0:
+            kept.append(m)
+            continue
+        same = seen.setdefault((m.fiducial_id, stamp), {})
+        content = _content(m)
+        if content in same:
+            continue
+        if same and m.fiducial_id:
+            first = next(iter(same.values()))
+            raise DuplicateConflict(
+                f"fiducial {quote(m.fiducial_id)} at stamp {_stamp_text(m)}: two messages with "
+                f"other points (working {first.working} vs {m.working}, destination "
+                f"{first.destination} vs {m.destination}"
+                + (f", frames {first.working_frame!r}/{first.destination_frame!r} vs "
+                   f"{m.working_frame!r}/{m.destination_frame!r}"
+                   if content[:2] != _content(first)[:2] else "")
+                + "): one stamp is one measurement, which one is right is not known; "
+                "remove the wrong message")
+        same[content] = m
+        kept.append(m)
+    return kept, len(inputs) - len(kept)
+
+
 def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
                     recorded: Sequence[PairMessage] = (), targets: Optional[Targets] = None,
                     source: str = "input") -> OfflineModel:
@@ -170,4 +227,5 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
     notes = ("targets have no truth: TRE not computed",) \
         if targets is not None and targets.destination is None else ()
     notes += acc.stamp_warnings
-    return OfflineModel(state.model, acc.fiducials, settings, targets, acc.rejected, notes)
+    return OfflineModel(state.model, acc.fiducials, settings, targets, acc.rejected, notes,
+                        state.warning)

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any, NamedTuple, Optional, Sequence, Union
 
 from ..io.bag.reader import read_raw
-from ..io.bag.records import MAX_REPLAY_WAIT, REPLAY_RATES, BagError, RawMessage
+from ..io.bag.records import (MAX_REPLAY_WAIT, REPLAY_RATES, BagError, RawMessage,
+                              topic_name_error)
 from ..io.escape import terminal
 from ..io.progress import Progress
 
@@ -89,6 +90,10 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
     messages = read_raw(bag, topics, progress=progress,
                         warn=lambda line: log(f"replay: {terminal(line)}"))
     types = {m.topic: m.msgtype for m in messages}
+    for topic in types:     # rclpy would raise its own exception (a traceback) on a bad name
+        if topic_name_error(topic):
+            raise BagError(f"bag {bag}: {topic_name_error(topic)}: it cannot be published "
+                           "(--topics names the ones to replay)")
     classes, skipped = {}, []
     for topic, msgtype in types.items():
         try:

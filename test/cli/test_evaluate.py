@@ -174,7 +174,12 @@ def test_report_directory(tmp_path, capsys):
     rep = json.loads((out / "report.json").read_text())
     dec = rep["decision"]
     assert "## Decision" in md and f"targets get **{dec['method']}**" in md
-    assert escape.markdown(dec["reason"]) in md          # the reason, escaped like all text
+    # the reason, escaped like all text, its lengths (held-out medians) in mm as the report's
+    reason_mm = dec["reason"]
+    for c in dec["cv"].values():
+        if c["median"] is not None:
+            reason_mm = reason_mm.replace(f" {c['median']:.3g}", f" {1e3 * c['median']:.3g}")
+    assert reason_mm != dec["reason"] and escape.markdown(reason_mm) in md
     assert "![cv_errors.png](cv_errors.png)" in md
     for name in dec["cv"]:
         assert f"| {name} | {1e3 * dec['cv'][name]['median']:.4g} |" in md
@@ -250,3 +255,114 @@ def test_point_stamps_that_repeat_are_noted(tmp_path, capsys):
     cli.main(["evaluate", str(bag), "--quiet"])
     out = capsys.readouterr().out
     assert out.count("point stamps repeat") == 2, out      # once per stream
+
+
+def test_exact_duplicate_pairs_are_dropped_with_one_warning(tmp_path, capsys):
+    """A bag recorded twice (every FiducialPair again, same id, stamp and points) counted each
+    message as a repeat: sigma halved, or 0 with rho inf for single measurements (a review). The
+    duplicates are dropped with one warning line naming their count and topic."""
+    msgs = list(cell_messages(make_cell("RA", seed=0)))
+    pairs = [m for m in msgs if m.topic == DEFAULT_TOPICS.fiducial_pairs]
+    write_bag(tmp_path / "once", msgs, progress=False)
+    write_bag(tmp_path / "twice", msgs + pairs, progress=False)
+    once = run_json(["evaluate", str(tmp_path / "once"), "--quiet"], tmp_path / "1.json")
+    assert "warning" not in capsys.readouterr().err
+    twice = run_json(["evaluate", str(tmp_path / "twice"), "--quiet"], tmp_path / "2.json")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert (f"warning: bag {tmp_path / 'twice'}: {DEFAULT_TOPICS.fiducial_pairs}: "
+            f"{len(pairs)} exact duplicate message(s) dropped") in err[0]
+    assert twice["n_measurements"] == once["n_measurements"] == len(pairs)
+    assert_same_numbers(exact_part(once), exact_part(twice))
+    assert twice["bag"]["messages"][DEFAULT_TOPICS.fiducial_pairs] == 2 * len(pairs)
+
+
+def test_one_id_and_stamp_with_other_points_is_refused(tmp_path, capsys):
+    msgs = list(cell_messages(make_cell("RA", seed=0)))
+    first = next(m for m in msgs if m.topic == DEFAULT_TOPICS.fiducial_pairs)
+    other = first._replace(xyz=(first.xyz[0] + 1e-4,) + first.xyz[1:])
+    write_bag(tmp_path / "bag", msgs + [other], progress=False)
+    assert cli.main(["evaluate", str(tmp_path / "bag"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    sec, nsec = divmod(first.stamp_ns, 1_000_000_000)
+    assert (f"{DEFAULT_TOPICS.fiducial_pairs}: fiducial {first.fiducial_id!r} at stamp "
+            f"{sec}.{nsec:09d} s: two messages with other points") in err[0]
+    assert "Traceback" not in err[0]
+
+
+def test_unstamped_pairs_are_never_duplicates():
+    """Stamp 0 (not stamped) tells no measurement apart: such messages are all kept."""
+    from rbc_registration.pipeline.inputs import PairMessage
+    from rbc_registration.pipeline.offline import drop_duplicate_pairs
+
+    m = PairMessage(0, 0.0, "F", (1.0, 2.0, 0.0), "tracker", (1.0, 2.0, 0.0), "world", 0)
+    kept, n = drop_duplicate_pairs([m, m, m._replace(working=(1.1, 2.0, 0.0))])
+    assert n == 0 and len(kept) == 3
+    stamped = m._replace(stamp_s=1.0, stamp_ns=1_000_000_000)
+    kept, n = drop_duplicate_pairs([stamped, stamped, stamped._replace(fiducial_id="G")])
+    assert n == 1 and [k.fiducial_id for k in kept] == ["F", "G"]
+
+
+def test_warnings_are_in_report_json_and_report_md(tmp_path, capsys):
+    """The warnings went to stderr only (a review): report.json and report.md did not say that
+    the bag looks like millimetres, or which fiducial stands out. Each is in both now, once."""
+    def mm(m):
+        return m._replace(xyz=tuple(1e3 * v for v in m.xyz),
+                          destination=tuple(1e3 * v for v in m.destination))
+    bag, out = tmp_path / "bag", tmp_path / "out"
+    write_bag(bag, [mm(m) for m in cell_messages(make_cell("RA", seed=0))], progress=False)
+    report = run_json(["evaluate", str(bag), "--quiet", "--out", str(out)], tmp_path / "e.json")
+    err = capsys.readouterr().err
+    assert report["warnings"] and all(w in err for w in report["warnings"])
+    assert any("the fiducials' RMS distance from their centroid is" in w
+               for w in report["warnings"])
+    assert json.loads((out / "report.json").read_text())["warnings"] == report["warnings"]
+    md = (out / "report.md").read_text()
+    assert all(f"**Warning**: {escape.markdown(w)}" in md for w in report["warnings"])
+
+
+def test_a_blunder_is_warned_once_and_reported(tmp_path, capsys):
+    """One fiducial's points 5 mm off (a wrong hole): one warning line (the model state's; the
+    check ran twice before), in the reports too."""
+    fid = DEFAULT_TOPICS.fiducial_pairs
+    msgs = [m._replace(xyz=(m.xyz[0] + 0.005,) + m.xyz[1:])
+            if m.topic == fid and m.fiducial_id == "F100" else m
+            for m in cell_messages(make_cell("RA", seed=0))]
+    write_bag(tmp_path / "bag", msgs, progress=False)
+    report = run_json(["evaluate", str(tmp_path / "bag"), "--quiet"], tmp_path / "e.json")
+    err = capsys.readouterr().err
+    assert err.count("held-out error") == 1 and "fiducial F100: held-out error" in err, err
+    assert len(report["warnings"]) == 1 and "fiducial F100: held-out error" in report["warnings"][0]
+
+
+def test_targets_without_truth_get_a_table_of_corrections(tmp_path):
+    cell = make_cell("RA", seed=0)
+    nan = (float("nan"),) * 3
+    msgs = [m._replace(destination=nan) if m.topic == DEFAULT_TOPICS.targets else m
+            for m in cell_messages(cell)]
+    write_bag(tmp_path / "bag", msgs, progress=False)
+    out = tmp_path / "out"
+    assert cli.main(["evaluate", str(tmp_path / "bag"), "--quiet", "--out", str(out)]) == 0
+    md = (out / "report.md").read_text()
+    report = json.loads((out / "report.json").read_text())
+    assert "## Targets" in md and "TRE_u" not in md
+    first = report["targets"][0]
+    eps = 1e3 * float(np.linalg.norm(first["correction"]))
+    assert f"| {first['id']} | {eps:.4g} | {1e3 * first['expected_tre']:.4g} |" in md
+    assert md.count("\n| T") == len(cell.target_ids) == 80
+
+
+def test_report_md_quotes_the_reason_in_mm(tmp_path):
+    write_bag(tmp_path / "bag", cell_messages(make_cell("RA", seed=0)), progress=False)
+    out = tmp_path / "out"
+    assert cli.main(["evaluate", str(tmp_path / "bag"), "--quiet", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    md = (out / "report.md").read_text()
+    cv = report["decision"]["cv"]
+    best = cv[report["decision"]["method"]]["median"]
+    metres = f"median error {best:.3g} vs {cv['uncorrected']['median']:.3g}"
+    assert metres in report["decision"]["reason"]
+    assert escape.markdown(f"median error {1e3 * best:.3g} vs "
+                           f"{1e3 * cv['uncorrected']['median']:.3g}") in md
+    assert escape.markdown(metres) not in md

@@ -302,3 +302,30 @@ def test_a_far_origin_does_not_tie_real_differences():
     near = build_model(x * 1e-3, y * 1e-3, ModelConfig(dimension=2))
     far = build_model(x * 1e-3, y * 1e-3 + [5e5, 5e6], ModelConfig(dimension=2))
     assert near.decision.method == far.decision.method == "kriging"
+
+
+def test_a_rho_below_a_threshold_never_prints_as_the_threshold():
+    """rho 2.496 was shown as 2.5 (``.3g``) beside 'uncertain' (a review): the number shown
+    agrees with the verdict, with more digits near a threshold only."""
+    from rbc_registration.core.noise import format_against, format_rho
+
+    assert format_rho(2.496) == "2.496" and format_rho(2.4996) == "2.4996"
+    assert format_rho(0.9996) == "0.9996" and format_rho(2.5) == "2.5"
+    assert format_rho(5.856) == "5.86" and format_rho(math.inf) == "inf"
+    assert format_against(1.0004, (1.0,)) == "1"       # the same side: no more digits
+    w, dst = cell(0, bias=0.3)
+    cv = build_model(w, dst, ModelConfig(dimension=2)).decision.cross_validation
+    d = decide("rho", cv, "paper", Assessment(2.496, "uncertain"))
+    assert "rho = 2.496 is between 1 and 2.5 (uncertain)" in d.reason
+
+
+def test_the_reason_quotes_its_lengths_in_another_unit():
+    """report.md (mm) quoted the reason's held-out errors in metres (a review)."""
+    w, dst = cell(0, bias=0.3)
+    d = build_model(w, dst, ModelConfig(dimension=2)).decision
+    base = d.candidate("uncorrected")
+    assert len(d.reason_lengths) >= 2 and base.cv_median in d.reason_lengths
+    mm = d.reason_in(1000.0)
+    assert d.reason_in(1.0) == d.reason and mm != d.reason
+    for v in d.reason_lengths:
+        assert f"{v:.3g}" in d.reason and f"{1e3 * v:.3g}" in mm

@@ -263,3 +263,25 @@ def test_one_topic_named_for_two_inputs_is_refused(bags):
     same = DEFAULT_TOPICS._replace(targets=DEFAULT_TOPICS.fiducial_pairs)
     with pytest.raises(BagError, match="each topic can be one input only"):
         read_bag(bags["sqlite3"], same, progress=False)
+
+
+def test_an_input_topic_listed_without_messages_decides_nothing(tmp_path, cell_a, capsys):
+    """``ros2 bag record -a`` lists a topic that published nothing: a pair bag with an empty
+    working_point connection was refused ('has working_point but not destination_point')."""
+    bag = tmp_path / "record_a"
+    write_bag(bag, cell_messages(cell_a), progress=False,
+              empty=[(DEFAULT_TOPICS.working_point, "point")])
+    contents = read_bag(bag, progress=False)
+    assert contents.counts[DEFAULT_TOPICS.working_point] == 0
+    assert contents.notes == (f"bag {bag}: {DEFAULT_TOPICS.working_point}: listed with 0 "
+                              "messages (ignored)",)
+    assert cli.main(["evaluate", str(bag), "--quiet"]) == 0
+    assert "working_point: listed with 0 messages (ignored)" in capsys.readouterr().out
+    # points on one stream and an empty other stream still cannot be paired
+    half = tmp_path / "half"
+    write_bag(half, [m for m in cell_messages(cell_a, points=True)
+                     if m.topic != DEFAULT_TOPICS.destination_point], progress=False,
+              empty=[(DEFAULT_TOPICS.destination_point, "point")])
+    with pytest.raises(BagError, match="destination_point .listed with 0 messages.: points "
+                                       "cannot be paired"):
+        read_bag(half, progress=False)

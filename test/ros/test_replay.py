@@ -197,3 +197,19 @@ def test_replay_rate_must_be_positive(rate, capsys):
     with pytest.raises(SystemExit) as exc:
         cli.main(["replay", "bag", "--rate", rate])
     assert exc.value.code == 2 and "--rate" in capsys.readouterr().err
+
+
+def test_a_topic_no_ros_graph_takes_is_one_clear_line(tmp_path, capsys):
+    """A bag with the topic '/my node!/fiducial_pairs' (written by synth-bag before it checked
+    --node-name) ended replay in rclpy's InvalidTopicNameException traceback."""
+    from rbc_registration.core.synthetic import make_cell
+    from rbc_registration.io.bag.records import Topics
+    from rbc_registration.io.bag.synthetic import cell_messages
+    from rbc_registration.io.bag.writer import write_bag
+
+    bag = tmp_path / "bad"
+    write_bag(bag, cell_messages(make_cell("RA", seed=0), Topics.for_node("my node!")),
+              progress=False)
+    assert cli.main(["replay", str(bag), "--wait", "0", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'/my node!/fiducial_pairs' is not a valid ROS topic name" in err[0]

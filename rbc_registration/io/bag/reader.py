@@ -18,6 +18,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError
 
 from ...core.constants import DESTINATION, WORKING
+from ...pipeline.offline import DuplicateConflict, drop_duplicate_pairs
 from ..progress import Progress
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
@@ -80,6 +81,10 @@ def _stamp(header: Any) -> float:
     return header.stamp.sec + header.stamp.nanosec * 1e-9
 
 
+def _stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
 def _xyz(p: Any) -> tuple[float, float, float]:
     return (float(p.x), float(p.y), float(p.z))
 
@@ -119,11 +124,16 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
             raise BagError(f"bag {path}: none of the input topics {', '.join(topics[:3])} "
                            f"(topics in the bag: {listing}); name them with --fiducial-topic, "
                            "--working-topic, --destination-topic")
-        points = [t for t in topics[1:3] if t in types]
+        # A topic listed without messages (``ros2 bag record -a`` lists every topic it saw)
+        # decides nothing: the point streams count by their messages.
+        listed = listed_counts(reader.connections)
+        empty = [t for t in topics[:3] if t in types and not listed[t]]
+        points = [t for t in topics[1:3] if listed.get(t)]
         if len(points) == 1:
-            missing = set(topics[1:3]) - set(points)
-            raise BagError(f"bag {path}: has {points[0]} but not {missing.pop()}: points cannot "
-                           "be paired")
+            missing = (set(topics[1:3]) - set(points)).pop()
+            raise BagError(f"bag {path}: has {points[0]} but not {missing}"
+                           f"{' (listed with 0 messages)' if missing in types else ''}: points "
+                           "cannot be paired")
         wanted = [t for t in expected if t in types]
         check_definitions(reader, store, wanted)
         conns = [c for c in reader.connections if c.topic in wanted]
@@ -145,7 +155,8 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                 if conn.topic in (topics.fiducial_pairs, topics.targets):
                     pair = PairMessage(log_ns, _stamp(msg.header), msg.fiducial_id,
                                        _xyz(msg.working_point), msg.header.frame_id,
-                                       _xyz(msg.destination_point), msg.destination_frame_id)
+                                       _xyz(msg.destination_point), msg.destination_frame_id,
+                                       _stamp_ns(msg.header))
                     (ins if conn.topic == topics.fiducial_pairs else tgts).append(pair)
                 else:
                     stream = WORKING if conn.topic == topics.working_point else DESTINATION
@@ -158,9 +169,26 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
             raise BagError(f"bag {path}: truncated or corrupt after {k} message(s): "
                            f"{_describe(exc)}") from None
         bar.done()
+    try:
+        ins, n_dup = drop_duplicate_pairs(ins)
+    except DuplicateConflict as exc:
+        raise BagError(f"bag {path}: {topics.fiducial_pairs}: {exc}") from None
+    notes = tuple(f"bag {path}: {t}: listed with 0 messages (ignored)" for t in empty)
+    warnings = (f"bag {path}: {topics.fiducial_pairs}: {n_dup} exact duplicate message(s) "
+                "dropped (the id, stamp and points of an earlier message: a bag recorded twice "
+                "or a topic republished?); each is one measurement, not a repeat",) \
+        if n_dup else ()
     other = {t: ty for t, ty in types.items() if t not in expected}
     return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other,
-                       count_mismatches(path, conns, counts))
+                       count_mismatches(path, conns, counts), warnings, notes)
+
+
+def listed_counts(conns: Sequence[Any]) -> dict[str, int]:
+    """``{topic: messages}`` as the bag's metadata lists them (its connections' counts)."""
+    listed: dict[str, int] = {}
+    for c in conns:
+        listed[c.topic] = listed.get(c.topic, 0) + int(c.msgcount)
+    return listed
 
 
 def count_mismatches(path: Union[str, Path], conns: Sequence[Any], read: dict[str, int]
@@ -168,9 +196,7 @@ def count_mismatches(path: Union[str, Path], conns: Sequence[Any], read: dict[st
     """One line per topic whose count in the bag's metadata (``message_count`` of its
     connections) differs from the messages read: the storage lost messages, or another storage
     file was put in its place."""
-    listed: dict[str, int] = {}
-    for c in conns:
-        listed[c.topic] = listed.get(c.topic, 0) + int(c.msgcount)
+    listed = listed_counts(conns)
     return tuple(f"bag {path}: {topic}: the metadata lists {n} message(s), {read.get(topic, 0)} "
                  "were read (the storage and its metadata disagree: messages lost?)"
                  for topic, n in sorted(listed.items()) if n != read.get(topic, 0))

@@ -14,6 +14,7 @@ as a bag directory (with ``metadata.yaml``) or a single storage file.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import NamedTuple, Union
 
@@ -35,7 +36,31 @@ MESSAGE_TYPES = {"pair": FIDUCIAL_PAIR, "point": POINT_STAMPED}
 
 __all__ = ["DEFAULT_TOPICS", "FIDUCIAL_PAIR", "INTERFACE_PACKAGE", "MESSAGE_TYPES",
            "POINT_STAMPED", "STORAGES", "BagContents", "BagError", "OutMessage", "PairMessage",
-           "PointMessage", "RawMessage", "Topics"]
+           "PointMessage", "RawMessage", "Topics", "node_name_error", "topic_name_error"]
+
+
+#: A token of a ROS name (rcl's rules): a letter or underscore, then letters, digits, underscores.
+_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def node_name_error(name: str) -> str:
+    """Why ``name`` is not a valid ROS node name, optionally with its namespace (``cell_a/reg``:
+    tokens separated by ``/``, at most 255 characters), or ""."""
+    tokens = name.strip("/").split("/")
+    if len(name) > 255 or not all(_TOKEN.fullmatch(t) for t in tokens):
+        return (f"{name!r} is not a valid ROS node name (letters, digits and underscores, not "
+                "starting with a digit, at most 255 characters; a namespace before it with '/')")
+    return ""
+
+
+def topic_name_error(name: str) -> str:
+    """Why ``name`` is not a valid resolved ROS topic name (``/`` then tokens separated by
+    ``/``), or ""."""
+    tokens = name[1:].split("/") if name.startswith("/") else None
+    if tokens is None or not all(_TOKEN.fullmatch(t) for t in tokens):
+        return (f"{name!r} is not a valid ROS topic name ('/' then names of letters, digits and "
+                "underscores, not starting with a digit, separated by '/')")
+    return ""
 
 
 class BagError(ValueError):
@@ -62,9 +87,11 @@ DEFAULT_TOPICS = Topics.for_node()
 
 
 class BagContents(NamedTuple):
-    """What :func:`read_bag` found: the node's inputs in bag (receive-time) order, the targets,
-    message counts per topic, the other topics of the bag (name -> type) and a line per topic
-    whose metadata count differs from the messages read."""
+    """What :func:`read_bag` found: the node's inputs in bag (receive-time) order (exact
+    duplicates of ``FiducialPair`` messages dropped), the targets, message counts per topic (as
+    read), the other topics of the bag (name -> type), a line per topic whose metadata count
+    differs from the messages read, warnings (the duplicates dropped) and notes (an input topic
+    listed with 0 messages)."""
 
     path: Path
     inputs: tuple[Union[PairMessage, PointMessage], ...]
@@ -72,6 +99,8 @@ class BagContents(NamedTuple):
     counts: dict[str, int]
     other_topics: dict[str, str]
     count_mismatches: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
 
 class RawMessage(NamedTuple):

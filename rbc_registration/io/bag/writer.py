@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Iterable, Union
+from typing import Any, Iterable, Sequence, Union
 
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
@@ -14,8 +14,12 @@ from .typestore import make_typestore
 
 
 def write_bag(path: Union[str, Path], messages: Iterable[OutMessage], storage: str = "sqlite3",
-              progress: bool = True, total: int = 0) -> int:
+              progress: bool = True, total: int = 0,
+              empty: Sequence[tuple[str, str]] = ()) -> int:
     """Write ``messages`` (receive time = header stamp) to a new bag directory ``path``.
+
+    :param empty: ``(topic, kind)`` of topics to list without messages (as ``ros2 bag record
+        -a`` lists a topic that published nothing); ``kind`` as in :class:`OutMessage`.
 
     :return: the number of messages written.
     :raises BagError: on an unknown storage or when ``path`` exists.
@@ -37,6 +41,8 @@ def write_bag(path: Union[str, Path], messages: Iterable[OutMessage], storage: s
     bar = Progress(f"writing {Path(path).name}", total, enabled=progress)
     n = 0
     with writer:
+        for topic, kind in empty:
+            conns[topic] = writer.add_connection(topic, types[kind], typestore=store)
         for m in messages:
             if m.topic not in conns:
                 conns[m.topic] = writer.add_connection(m.topic, types[m.kind], typestore=store)
