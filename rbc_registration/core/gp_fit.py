@@ -9,7 +9,9 @@ components share s, l and sigma. :func:`fit_hyperparameters`:
   (one Cholesky factorisation per grid point), then L-BFGS-B refines it with the analytic gradient
   of the log marginal likelihood (Rasmussen & Williams 2006, eq. 5.9);
 - a warm start (the previous model's hyper-parameters, e.g. from the node) is refined, not reused
-  blindly: the grid's best point is refined as well when it scores better;
+  blindly: the grid's best point is refined as well when it scores better; above
+  :data:`FIT_MAX_FIDUCIALS` a warm start in the best basin is refined on the fit's subsample from
+  itself (one or a few evaluations when the fiducials changed little), not from the search's;
 - above :data:`FIT_MAX_FIDUCIALS` fiducials the hyper-parameters are fitted on a subsample of that
   size (grid on :data:`SEARCH_MAX_FIDUCIALS`); the interpolator always conditions on all fiducials.
 """
@@ -287,15 +289,20 @@ def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
     fit = likelihood(fit_idx)
     search = fit if len(search_idx) == len(fit_idx) else likelihood(search_idx)
     grid = search.grid_search(np.geomspace(spacing / 2, extent * 3, GRID_LENGTHS))
-    if initial is not None:
-        best = _minimise(search, _theta(initial, scale, noise2, d), bounds)
+    start = None if initial is None else _theta(initial, scale, noise2, d)
+    if start is not None:
+        best = _minimise(search, start, bounds)
         if search(grid)[0] < best.fun:        # the warm start sits in a worse basin
             other = _minimise(search, grid, bounds)
             best = other if other.fun < best.fun else best
+            start = None
     else:
         best = _minimise(search, grid, bounds)
     if search is not fit:
-        best = _minimise(fit, best.x, bounds)
+        # A warm start in the best basin is refined on the fit's subsample from where it was:
+        # the previous model's optimum of (nearly) the same subsample, a few evaluations away;
+        # the search subsample's optimum is ~15 evaluations of O(FIT_MAX_FIDUCIALS^3) away.
+        best = _minimise(fit, best.x if start is None else start, bounds)
     s2, length, n2 = fit.unpack(best.x)
     return KrigingHyperparameters(math.sqrt(s2), length, math.sqrt(n2 * d), noise2 is None)
 

@@ -58,6 +58,33 @@ def test_fit_finds_the_noise_and_the_warm_start_the_same_optimum():
     assert again.length_scale == pytest.approx(cold.length_scale, rel=1e-3)
 
 
+def test_a_warm_start_above_the_fit_subsample_is_refined_there_from_where_it_was(monkeypatch):
+    """Above FIT_MAX_FIDUCIALS (the search on a smaller subsample): a warm start in the best basin
+    is refined on the fit's subsample from itself, not from the search's optimum; the same
+    optimum, in a few evaluations there when it is the optimum already."""
+    monkeypatch.setattr(gp_fit, "FIT_MAX_FIDUCIALS", 160)
+    monkeypatch.setattr(gp_fit, "SEARCH_MAX_FIDUCIALS", 60)
+    x, eps = field_cell(5, 400, 3)
+    on_fit = []
+    real = MarginalLikelihood.__call__
+
+    def counted(self, theta):
+        if len(self.eps) == 160:
+            on_fit.append(1)
+        return real(self, theta)
+    monkeypatch.setattr(MarginalLikelihood, "__call__", counted)
+    cold = fit_hyperparameters(x, eps)
+    n_cold = len(on_fit)
+    on_fit.clear()
+    warm = fit_hyperparameters(x, eps, initial=cold)
+    assert len(on_fit) <= 3 < n_cold
+    near = fit_hyperparameters(x, eps, initial=cold._replace(
+        length_scale=cold.length_scale * 1.3, signal_std=cold.signal_std * 0.8))
+    for other in (warm, near):
+        for a, b in zip(other[:3], cold[:3]):
+            assert a == pytest.approx(b, rel=1e-3)
+
+
 def test_given_sigma_is_kept_and_warm_start_is_used_by_the_interpolator():
     x, eps = field_cell(5, 60, 2)
     ip = KrigingInterpolator(x, eps, sigma=0.003)
