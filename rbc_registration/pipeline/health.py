@@ -7,8 +7,9 @@ Levels (issue 10 item 6, issue 9):
 - ``ERROR``: no model to answer targets (or the journal cannot be written);
 - ``WARN``: an uncertain decision, a fiducial whose held-out error stands out (a likely typo or
   wrong hole), measurements rejected since the last report, a stale model (accepted
-  measurements waiting longer than ``stale_after`` seconds to enter it), or a loaded
-  calibration without a live model;
+  measurements waiting longer than ``stale_after`` seconds to enter it), a loaded
+  calibration without a live model, or ``use_sim_time`` with no ``/clock`` received (every stamp
+  0);
 - ``OK``: a valid model with a confident decision, whether or not it applies corrections.
 """
 
@@ -49,6 +50,8 @@ class HealthInputs(NamedTuple):
         (publish-only), empty when none.
     :ivar model_warning: what to check in the served model (a suspect fiducial), empty when
         nothing.
+    :ivar clock_warning: what is wrong with the node's clock (``use_sim_time`` with no ``/clock``
+        yet), empty when nothing.
     """
 
     model_valid: bool
@@ -62,6 +65,7 @@ class HealthInputs(NamedTuple):
     journal_error: str = ""
     calibration: str = ""
     model_warning: str = ""
+    clock_warning: str = ""
 
 
 class HealthMonitor:
@@ -99,6 +103,8 @@ class HealthMonitor:
         if waited > self.stale_after:
             warnings.append(f"stale model: {inputs.n_pending} measurement(s) waiting for "
                             f"{waited:.0f} s (stale_after {self.stale_after:g} s)")
+        if inputs.clock_warning:
+            warnings.append(inputs.clock_warning)
         if not inputs.model_valid:
             if inputs.calibration:
                 return Health(Level.WARN, "; ".join([f"publish-only: {inputs.calibration}"]

@@ -130,7 +130,8 @@ SPECS: dict[str, Spec] = {
                         "longer than this [s] without entering the model (a stale model).",
                         low=0.0, high=1e6, low_exclusive=True),
     "status_period": Spec(1.0, "Period [s] of ~/status and /diagnostics besides each "
-                          "recompute. Read-only.", read_only=True, low=0.01, high=3600.0),
+                          "recompute, on the steady clock (with use_sim_time too). Read-only.",
+                          read_only=True, low=0.01, high=3600.0),
     "tf_broadcast": Spec("corrected", "Which registration the node's own /tf_static entry "
                          "holds (replaced on every model): 'corrected', 'uncorrected' or 'none' "
                          "(no entry).",

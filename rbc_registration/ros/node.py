@@ -17,6 +17,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, TransformStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
@@ -160,8 +161,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
                 (SuggestNext, "~/suggest_next", self._on_suggest_next)):
             self.create_service(srv_type, name, guard_service(self.get_logger(), name, callback),
                                 callback_group=services)
+        # On the steady clock: with use_sim_time a paused or absent /clock would stop the
+        # heartbeat of ~/status and /diagnostics (their stamps stay on the node clock).
         self.create_timer(s.status_period, self._publish_status,
-                          callback_group=MutuallyExclusiveCallbackGroup())
+                          callback_group=MutuallyExclusiveCallbackGroup(),
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._on_parameters_set)
 

@@ -111,7 +111,8 @@ class PublishingMixin:
         with self._pub_lock:
             self._health.stale_after = self._settings.stale_after
             health = health_of(status, self._health, self._ingest.journal_error,
-                               loaded.describe() if loaded is not None else "", state.warning)
+                               loaded.describe() if loaded is not None else "", state.warning,
+                               self.get_clock().ros_time_is_active)
             self._pub_status.publish(status)
             self._pub_diagnostics.publish(diagnostics_msg(status, self.get_name(),
                                                           status.header.stamp, health))

@@ -98,13 +98,23 @@ def status_msg(state: ModelState, settings: Settings, counters: Counters,
 
 
 def health_of(status: RegistrationStatus, monitor: HealthMonitor, journal_error: str = "",
-              calibration: str = "", model_warning: str = "") -> Health:
+              calibration: str = "", model_warning: str = "", sim_time: bool = False) -> Health:
     """The health (:mod:`rbc_registration.pipeline.health`) of ``status`` at its stamp;
-    ``model_warning``: the served state's :attr:`~.ModelState.warning`."""
+    ``model_warning``: the served state's :attr:`~.ModelState.warning`; ``sim_time``: the node's
+    clock is ``/clock`` (``use_sim_time``), so a stamp of 0 means no ``/clock`` has arrived."""
+    clock = ""
+    if sim_time and status.header.stamp.sec == 0 and status.header.stamp.nanosec == 0:
+        clock = NO_CLOCK
     return monitor.assess(HealthInputs(
         status.model_valid, status.message, status.decision_confident, status.decision_reason,
         status.n_fiducials, status.decision_method, status.n_rejected, status.n_pending,
-        journal_error, calibration, model_warning), stamp_to_seconds(status.header.stamp))
+        journal_error, calibration, model_warning, clock), stamp_to_seconds(status.header.stamp))
+
+
+#: The health's line when ``use_sim_time`` is true and no ``/clock`` message has arrived.
+NO_CLOCK = ("use_sim_time is true and no /clock message has arrived: stamps are 0 and "
+            "max_stamp_age / sample_max_age compare against time 0 (start the /clock source, "
+            "e.g. a bag played with --clock, or set use_sim_time false)")
 
 
 def diagnostics_msg(status: RegistrationStatus, node_name: str, now: Time,

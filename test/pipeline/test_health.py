@@ -46,6 +46,14 @@ def test_warn_for_a_suspect_fiducial_after_an_uncertain_decision():
     assert h == (Level.WARN, f"uncertain decision: rho 1.8; {line}")
 
 
+def test_a_clock_warning_is_a_warn_with_a_valid_model_and_said_with_no_model():
+    line = "use_sim_time is true and no /clock message has arrived: ..."
+    assert HealthMonitor(10.0).assess(GOOD._replace(clock_warning=line), 0.0) == (Level.WARN, line)
+    h = HealthMonitor(10.0).assess(GOOD._replace(clock_warning=line, model_valid=False,
+                                                 model_error="2 fiducials"), 0.0)
+    assert h == (Level.ERROR, f"no model: 2 fiducials; {line}")
+
+
 def test_warn_for_rejections_since_the_previous_report_only():
     monitor = HealthMonitor(10.0)
     assert monitor.assess(GOOD._replace(n_rejected=2), 0.0) == (

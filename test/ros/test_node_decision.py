@@ -193,6 +193,34 @@ class TestGetFiducials(NodeTestBase):
         assert planted not in d.message
 
 
+class TestSimTimeWithoutClock(NodeTestBase):
+
+    def test_use_sim_time_without_clock_is_a_warn_until_clock_arrives(self):
+        """use_sim_time with no /clock: every stamp is 0 and the age checks compare against
+        time 0; /diagnostics says so (a WARN with a valid model: test_health) and still beats
+        (its timer is on steady time); the first /clock clears it."""
+        from builtin_interfaces.msg import Time
+        from rosgraph_msgs.msg import Clock
+
+        from rbc_registration.ros.status import NO_CLOCK
+        node = self.make_node(use_sim_time=True, status_period=0.1)
+        d = TestDecisionInStatusAndDiagnostics.diagnostics(self, node,
+                                                           lambda s: NO_CLOCK in s.message)
+        assert d.level == DiagnosticStatus.ERROR and d.message.startswith("no model: ")
+        assert node.status().header.stamp.sec == 0      # the heartbeat runs on steady time
+        pub = self.ros.client.create_publisher(Clock, "/clock", 10)
+        try:
+            def ticked():
+                pub.publish(Clock(clock=Time(sec=1000)))
+                return node.status().header.stamp.sec >= 1000
+            wait_for(ticked, what="the node's /clock")
+            d = TestDecisionInStatusAndDiagnostics.diagnostics(
+                self, node, lambda s: NO_CLOCK not in s.message)
+            assert "/clock" not in d.message
+        finally:
+            self.ros.client.destroy_publisher(pub)
+
+
 class TestRemovedParameter(NodeTestBase):
 
     def test_apply_corrections_at_start_names_its_replacement(self):
