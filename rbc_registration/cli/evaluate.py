@@ -34,8 +34,10 @@ def add_parser(sub: Any) -> None:
     ev.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="a registration_node parameter, e.g. -p merge_radius:=0.002 (repeatable)")
     ev.add_argument("--loo", action="store_true", help="leave-one-out estimate over fiducials")
-    ev.add_argument("--node-name", type=node_name, default="registration_node",
-                    help="default topics are /NODE_NAME/fiducial_pairs etc.")
+    ev.add_argument("--node-name", type=node_name, default=None,
+                    help="default topics are /NODE_NAME/fiducial_pairs etc. (default: the "
+                         "namespace of the topics named with --*-topic when they share one, "
+                         "else registration_node)")
     for option, _, what in TOPIC_OPTIONS:
         ev.add_argument(f"--{option}-topic", metavar="TOPIC", help=f"{what} topic")
     ev.add_argument("--quiet", action="store_true", help="no progress output")
@@ -48,7 +50,14 @@ def topics_from_args(args: argparse.Namespace) -> tuple[Any, list[str]]:
 
     named = {field: getattr(args, f"{option}_topic") for option, field, _ in TOPIC_OPTIONS}
     explicit = {k: v for k, v in named.items() if v}
-    return Topics.for_node(args.node_name)._replace(**explicit), list(explicit.values())
+    node = args.node_name
+    if node is None:
+        # --fiducial-topic /cell_a/reg/fiducial_pairs: the targets are /cell_a/reg/targets (the
+        # node's own namespace), not /registration_node/targets, a topic such a bag lacks
+        parents = {t.rstrip("/").rsplit("/", 1)[0] for t in explicit.values()}
+        parents.discard("")
+        node = parents.pop() if len(parents) == 1 else "registration_node"
+    return Topics.for_node(node)._replace(**explicit), list(explicit.values())
 
 
 def parse_params(items: list[str]) -> dict[str, Any]:

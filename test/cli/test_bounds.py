@@ -127,3 +127,18 @@ def test_a_namespaced_node_name_is_accepted(tmp_path):
                      "cell_a/reg", "--quiet"]) == 0
     assert cli.main(["evaluate", str(tmp_path / "bag"), "--node-name", "/cell_a/reg",
                      "--quiet"]) == 0
+
+
+def test_a_named_topic_brings_its_namespace_to_the_topics_not_named(tmp_path):
+    """A bag of /cell_a/reg with --fiducial-topic (no --node-name): the targets come from
+    /cell_a/reg/targets (they were read from /registration_node/targets and lost silently)."""
+    bag = tmp_path / "bag"
+    assert cli.main(["synth-bag", str(bag), "--cell", "RA", "--node-name", "cell_a/reg",
+                     "--quiet"]) == 0
+    named, full = tmp_path / "named.json", tmp_path / "full.json"
+    assert cli.main(["evaluate", str(bag), "--fiducial-topic", "/cell_a/reg/fiducial_pairs",
+                     "--json", str(named), "--quiet"]) == 0
+    assert cli.main(["evaluate", str(bag), "--node-name", "/cell_a/reg", "--json", str(full),
+                     "--quiet"]) == 0
+    a, b = (json.loads(p.read_text()) for p in (named, full))
+    assert a["targets"] and a["targets"] == b["targets"]
