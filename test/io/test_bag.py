@@ -190,6 +190,29 @@ def test_bag_with_another_definition_of_fiducial_pair(tmp_path):
         read_bag(bag, progress=False)
 
 
+def test_every_topic_leaves_out_one_of_another_definition_with_a_line(tmp_path):
+    """replay reads every topic by default: an unrelated topic recorded with another definition
+    (e.g. another ROS release's) is left out with one line, not the whole bag; named, refused."""
+    store = get_typestore(Stores.ROS2_KILTED)
+    bag = tmp_path / "mixed"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
+        odd = w.add_connection("/odd", "std_msgs/msg/Int32", msgdef="int64 data\n",
+                               rihs01="RIHS01_" + "ab" * 32)      # another release's Int32
+        good = w.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
+        msg = store.types["std_msgs/msg/String"](data="hello")
+        w.write(good, 5, store.serialize_cdr(msg, "std_msgs/msg/String"))
+        w.write(odd, 6, bytes(12))
+    lines = []
+    out = read_raw(bag, progress=False, warn=lines.append)
+    assert [m.topic for m in out] == ["/chatter"]
+    assert len(lines) == 1 and "/odd was recorded with another definition of std_msgs/msg/Int32" \
+        in lines[0] and lines[0].endswith(": skipped")
+    with pytest.raises(BagError, match="another definition of std_msgs/msg/Int32"):
+        read_raw(bag, ["/odd"], progress=False, warn=lines.append)
+    with pytest.raises(BagError, match="another definition"):
+        read_raw(bag, progress=False)                       # no one to tell: refused
+
+
 def test_storage_must_be_known(tmp_path):
     with pytest.raises(BagError, match="storage must be one of sqlite3, mcap"):
         write_bag(tmp_path / "x", [], "zip")

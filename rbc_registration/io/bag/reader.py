@@ -208,7 +208,9 @@ def read_raw(path: Union[str, Path], topics: Optional[Sequence[str]] = None,
     """All messages of ``topics`` (default: every topic) in receive-time order, serialized.
 
     :param warn: called with each line of :func:`count_mismatches` (messages the metadata lists
-        that were not read, or the other way round).
+        that were not read, or the other way round), and, when ``topics`` is not given, with the
+        line of each topic whose type cannot be decoded here (left out; without ``warn`` that
+        refuses the bag).
 
     :raises BagError: when the bag cannot be read, a named topic is missing or a type has no
         definition or another definition than this installation's.
@@ -221,8 +223,21 @@ def read_raw(path: Union[str, Path], topics: Optional[Sequence[str]] = None,
             if missing:
                 raise BagError(f"bag {path}: no topic {', '.join(missing)} (topics in the bag: "
                                + (", ".join(sorted(types)) or "none") + ")")
-        wanted = list(topics) if topics else list(types)
-        check_definitions(reader, store, wanted, strict=False)
+        if topics:
+            wanted = list(topics)
+            check_definitions(reader, store, wanted, strict=False)
+        else:
+            # every topic: one recorded with another definition than this installation's (e.g.
+            # a /rosout of another ROS release) is left out with a line, not the whole bag
+            wanted = []
+            for topic in types:
+                try:
+                    check_definitions(reader, store, [topic], strict=False)
+                    wanted.append(topic)
+                except BagError as exc:
+                    if warn is None:
+                        raise
+                    warn(f"{exc}: skipped")
         conns = [c for c in reader.connections if c.topic in wanted]
         bar = Progress(f"reading {Path(path).name}", sum(c.msgcount for c in conns),
                        enabled=progress)
