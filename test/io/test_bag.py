@@ -296,15 +296,34 @@ def test_an_input_topic_listed_without_messages_decides_nothing(tmp_path, cell_a
               empty=[(DEFAULT_TOPICS.working_point, "point")])
     contents = read_bag(bag, progress=False)
     assert contents.counts[DEFAULT_TOPICS.working_point] == 0
-    assert contents.notes == (f"bag {bag}: {DEFAULT_TOPICS.working_point}: listed with 0 "
-                              "messages (ignored)",)
+    assert contents.notes == (f"bag {bag}: {DEFAULT_TOPICS.working_point}: no messages "
+                              "(ignored)",)
     assert cli.main(["evaluate", str(bag), "--quiet"]) == 0
-    assert "working_point: listed with 0 messages (ignored)" in capsys.readouterr().out
+    assert "working_point: no messages (ignored)" in capsys.readouterr().out
     # points on one stream and an empty other stream still cannot be paired
     half = tmp_path / "half"
     write_bag(half, [m for m in cell_messages(cell_a, points=True)
                      if m.topic != DEFAULT_TOPICS.destination_point], progress=False,
               empty=[(DEFAULT_TOPICS.destination_point, "point")])
-    with pytest.raises(BagError, match="destination_point .listed with 0 messages.: points "
-                                       "cannot be paired"):
+    with pytest.raises(BagError, match="destination_point .no messages.: points cannot be "
+                                       "paired"):
         read_bag(half, progress=False)
+
+
+def test_the_messages_read_not_the_metadata_say_whether_a_topic_is_empty(tmp_path, cell_a):
+    """A points bag whose metadata.yaml lists working_point with 0 messages while the storage
+    holds them all was refused ('has destination_point but not working_point')."""
+    bag = tmp_path / "points"
+    write_bag(bag, cell_messages(cell_a, points=True), progress=False)
+    meta = bag / "metadata.yaml"
+    text = meta.read_text()
+    block = text.index(f"name: {DEFAULT_TOPICS.working_point}")
+    at = text.rindex("message_count:", 0, block)           # its entry starts with the count
+    end = text.index("\n", at)
+    meta.write_text(text[:at] + "message_count: 0" + text[end:])
+    contents = read_bag(bag, progress=False)
+    n = contents.counts[DEFAULT_TOPICS.working_point]
+    assert n > 0 and not contents.notes
+    assert contents.count_mismatches == (
+        f"bag {bag}: {DEFAULT_TOPICS.working_point}: the metadata lists 0 message(s), {n} "
+        "were read (the storage and its metadata disagree: messages lost?)",)

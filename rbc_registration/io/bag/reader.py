@@ -124,16 +124,6 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
             raise BagError(f"bag {path}: none of the input topics {', '.join(topics[:3])} "
                            f"(topics in the bag: {listing}); name them with --fiducial-topic, "
                            "--working-topic, --destination-topic")
-        # A topic listed without messages (``ros2 bag record -a`` lists every topic it saw)
-        # decides nothing: the point streams count by their messages.
-        listed = listed_counts(reader.connections)
-        empty = [t for t in topics[:3] if t in types and not listed[t]]
-        points = [t for t in topics[1:3] if listed.get(t)]
-        if len(points) == 1:
-            missing = (set(topics[1:3]) - set(points)).pop()
-            raise BagError(f"bag {path}: has {points[0]} but not {missing}"
-                           f"{' (listed with 0 messages)' if missing in types else ''}: points "
-                           "cannot be paired")
         wanted = [t for t in expected if t in types]
         check_definitions(reader, store, wanted)
         conns = [c for c in reader.connections if c.topic in wanted]
@@ -169,11 +159,20 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
             raise BagError(f"bag {path}: truncated or corrupt after {k} message(s): "
                            f"{_describe(exc)}") from None
         bar.done()
+    # A topic without messages (``ros2 bag record -a`` lists every topic it saw) decides
+    # nothing: the point streams count by the messages read (not the metadata's counts).
+    empty = [t for t in topics[:3] if t in types and not counts[t]]
+    points = [t for t in topics[1:3] if counts.get(t)]
+    if len(points) == 1:
+        missing = (set(topics[1:3]) - set(points)).pop()
+        raise BagError(f"bag {path}: has {points[0]} but not {missing}"
+                       f"{' (no messages)' if missing in types else ''}: points cannot be "
+                       "paired")
     try:
         ins, n_dup = drop_duplicate_pairs(ins)
     except DuplicateConflict as exc:
         raise BagError(f"bag {path}: {topics.fiducial_pairs}: {exc}") from None
-    notes = tuple(f"bag {path}: {t}: listed with 0 messages (ignored)" for t in empty)
+    notes = tuple(f"bag {path}: {t}: no messages (ignored)" for t in empty)
     warnings = (f"bag {path}: {topics.fiducial_pairs}: {n_dup} exact duplicate message(s) "
                 "dropped (the id, stamp and points of an earlier message: a bag recorded twice "
                 "or a topic republished?); each is one measurement, not a repeat",) \

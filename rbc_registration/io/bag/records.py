@@ -91,7 +91,7 @@ class BagContents(NamedTuple):
     duplicates of ``FiducialPair`` messages dropped), the targets, message counts per topic (as
     read), the other topics of the bag (name -> type), a line per topic whose metadata count
     differs from the messages read, warnings (the duplicates dropped) and notes (an input topic
-    listed with 0 messages)."""
+    without messages)."""
 
     path: Path
     inputs: tuple[Union[PairMessage, PointMessage], ...]
