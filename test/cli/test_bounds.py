@@ -109,7 +109,7 @@ def test_target_truth_in_another_unit_gets_a_warning(tmp_path, capsys, mm_cell, 
 
 
 @pytest.mark.parametrize("command", ["synth-bag", "evaluate"])
-@pytest.mark.parametrize("name", ["my node!", "", "9lives", "a//b", "x" * 256])
+@pytest.mark.parametrize("name", ["my node!", "", "9lives", "a//b", "x" * 256, "a" * 229])
 def test_a_bad_node_name_is_one_clear_line(tmp_path, capsys, command, name):
     """``synth-bag --node-name "my node!"`` wrote a bag whose topics no ROS graph takes (replay
     then ended in an rclpy traceback; a review): ROS name rules, one line, exit 2."""
@@ -120,6 +120,18 @@ def test_a_bad_node_name_is_one_clear_line(tmp_path, capsys, command, name):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is not a valid ROS node name" in err[0], err
     assert not (tmp_path / "bag").exists()
+
+
+def test_the_longest_node_name_gives_topics_rcl_takes():
+    """A 250-character name passed and its replay ended in rclpy's InvalidTopicNameException
+    traceback (topics at most 255 - 8 characters; a review)."""
+    from rbc_registration.io.bag.records import (MAX_NODE_NAME_LENGTH, Topics, node_name_error,
+                                                 topic_name_error)
+    name = "a" * MAX_NODE_NAME_LENGTH
+    assert node_name_error(name) == "" and node_name_error("/" + name + "/") == ""
+    assert [topic_name_error(t) for t in Topics.for_node(name)] == [""] * 4
+    assert max(len(t) for t in Topics.for_node(name)) == 247
+    assert node_name_error(name + "a") and topic_name_error("/" + "a" * 247)
 
 
 def test_a_namespaced_node_name_is_accepted(tmp_path):

@@ -43,23 +43,36 @@ __all__ = ["DEFAULT_TOPICS", "FIDUCIAL_PAIR", "INTERFACE_PACKAGE", "MESSAGE_TYPE
 _TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
+#: rcl's longest topic name (RMW_TOPIC_MAX_NAME_LENGTH: 255 less the DDS prefix's 8).
+MAX_TOPIC_LENGTH = 247
+#: The longest ``~/`` topic of the node (its name's topics must fit in MAX_TOPIC_LENGTH).
+_LONGEST_SUFFIX = "/destination_point"
+#: The longest node name (with its namespace) whose topics are valid ROS topic names.
+MAX_NODE_NAME_LENGTH = MAX_TOPIC_LENGTH - 1 - len(_LONGEST_SUFFIX)
+
+
 def node_name_error(name: str) -> str:
     """Why ``name`` is not a valid ROS node name, optionally with its namespace (``cell_a/reg``:
-    tokens separated by ``/``, at most 255 characters), or ""."""
+    tokens separated by ``/``, at most :data:`MAX_NODE_NAME_LENGTH` characters, so that its
+    topics fit rcl's limit), or ""."""
     tokens = name.strip("/").split("/")
-    if len(name) > 255 or not all(_TOKEN.fullmatch(t) for t in tokens):
+    if len(name.strip("/")) > MAX_NODE_NAME_LENGTH or not all(_TOKEN.fullmatch(t)
+                                                               for t in tokens):
         return (f"{name!r} is not a valid ROS node name (letters, digits and underscores, not "
-                "starting with a digit, at most 255 characters; a namespace before it with '/')")
+                f"starting with a digit, at most {MAX_NODE_NAME_LENGTH} characters, so that "
+                f"its topics are at most {MAX_TOPIC_LENGTH}; a namespace before it with '/')")
     return ""
 
 
 def topic_name_error(name: str) -> str:
     """Why ``name`` is not a valid resolved ROS topic name (``/`` then tokens separated by
-    ``/``), or ""."""
+    ``/``, at most :data:`MAX_TOPIC_LENGTH` characters), or ""."""
     tokens = name[1:].split("/") if name.startswith("/") else None
-    if tokens is None or not all(_TOKEN.fullmatch(t) for t in tokens):
+    if tokens is None or len(name) > MAX_TOPIC_LENGTH or not all(_TOKEN.fullmatch(t)
+                                                                  for t in tokens):
         return (f"{name!r} is not a valid ROS topic name ('/' then names of letters, digits and "
-                "underscores, not starting with a digit, separated by '/')")
+                f"underscores, not starting with a digit, separated by '/'; at most "
+                f"{MAX_TOPIC_LENGTH} characters)")
     return ""
 
 
