@@ -15,6 +15,7 @@ import numpy as np
 from ..core.constants import CANDIDATES, CELLS, INTERPOLATIONS
 from ..core.experiments import CellResult, run_cell
 from ..core.model import ModelConfig
+from ..core.noise import format_rho
 from ..core.synthetic import make_cell
 from . import figures
 from .escape import terminal
@@ -109,7 +110,8 @@ def table(results: dict[str, CellResult]) -> str:
         d = m.decision
         cv = " / ".join("n/a" if s is None or not s.available else f"{s.cv_median:.3g}"
                         for s in map(d.candidate, CANDIDATES))
-        rows.append(f"| {cell} | {m.sigma:.3g} | {m.sigma_l[0]:.3g} | {m.rho:.3g} | "
+        rho = format_rho(m.rho, m.config.rho_reject, m.config.rho_apply)
+        rows.append(f"| {cell} | {m.sigma:.3g} | {m.sigma_l[0]:.3g} | {rho} | "
                     f"{m.sigma_l[1]:.2g} | {m.sigma_l[2]:.2g} | {m.recommendation} | "
                     f"{d.method}{'' if d.confident else ' (uncertain)'} | {cv} | "
                     f"{np.median(destination_tre(r)):.3g} |")

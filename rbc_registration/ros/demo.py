@@ -22,6 +22,7 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from ..core.constants import MM_PER_M
+from ..core.noise import format_rho
 from ..core.synthetic import make_cell
 from ..io.bag.reader import read_bag
 from ..io.bag.records import DEFAULT_TOPICS
@@ -29,6 +30,7 @@ from ..io.bag.synthetic import cell_messages
 from ..io.bag.writer import write_bag
 from ..io.evaluation import evaluate_contents, write_report_dir
 from ..pipeline.offline import settings_for
+from ..pipeline.settings import SPECS
 from .demo_client import NODE, DemoClient, DemoError
 from .process import start_node, stop_process
 
@@ -95,7 +97,8 @@ def run(out: Path, rate: float = 20.0, seed: int = 0, timeout: float = 60.0,
         tre_u = np.linalg.norm(uncorrected - truth, axis=1) * MM_PER_M
         tre_c = np.linalg.norm(corrected - truth, axis=1) * MM_PER_M
         applied = bool(response.results[0].correction_applied)
-        log(f"      rho = sigma_L0 / sigma = {status.rho:.3g} (sigma_L0 "
+        rho = format_rho(status.rho, SPECS["rho_reject"].default, SPECS["rho_apply"].default)
+        log(f"      rho = sigma_L0 / sigma = {rho} (sigma_L0 "
             f"{status.sigma_l[0] * MM_PER_M:.3g} mm, sigma {status.sigma * MM_PER_M:.3g} mm from "
             f"{status.sigma_source}) -> the paper's rule: {status.recommendation}")
         log(f"      decision ({status.decision_mode}): {status.decision_method}, corrections "
