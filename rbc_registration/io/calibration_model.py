@@ -218,14 +218,16 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
                    (("--parent-frame", parent, "world"), ("--child-frame", child, "tracker"))
                    if frame is None]
         if assumed:
-            notes.append(f"{where} records no frames (a register report): {' '.join(assumed)} "
-                         f"assumed (the node's defaults); give the option to say which")
+            notes.append(f"{where} records no frames (a register report, or an evaluate report "
+                         f"of an earlier version): {' '.join(assumed)} assumed (the node's "
+                         f"defaults); give the option to say which")
         parent, child = parent or "world", child or "tracker"
         created_s = time.time() if mtime is None else mtime
         n_fiducials = _get(data, "n_fiducials", where)
         sigma_l = _numbers(data, "sigma_L", where)
-        same_fits = ("uncorrected_fit" in data and "corrected_fit" in data
-                     and data["uncorrected_fit"] == data["corrected_fit"])
+        # an evaluate report (it has "bag") is the node's model: both fitted to all fiducials
+        same_fits = "bag" in data or ("uncorrected_fit" in data and "corrected_fit" in data
+                                      and data["uncorrected_fit"] == data["corrected_fit"])
     reg = _get(data, registration, where)
     sigma = None if data.get("sigma") is None else _number(data, "sigma", where)
     figures = _document_decision(data, where, scale)

@@ -337,8 +337,18 @@ def test_frames_of_an_evaluate_report_and_the_defaults_of_a_register_report(tmp_
     assert cli.main(["export", str(report), "--out", str(tmp_path / "reg.yaml")]) == 0
     err = capsys.readouterr().err
     assert err == (f"rbc-registration export: warning: {report} records no frames (a register "
-                   f"report): --parent-frame world --child-frame tracker assumed (the node's "
-                   f"defaults); give the option to say which\n")
+                   f"report, or an evaluate report of an earlier version): --parent-frame world "
+                   f"--child-frame tracker assumed (the node's defaults); give the option to say "
+                   f"which\n")
+    # an evaluate report of an earlier version (no frames, no fits recorded): the node's model,
+    # both registrations fitted to all fiducials, so the rigid figure is known
+    old = {k: v for k, v in data.items() if k not in ("working_frame", "destination_frame",
+                                                      "uncorrected_fit", "corrected_fit")}
+    (tmp_path / "old_ev.json").write_text(json.dumps(old))
+    assert cli.main(["export", str(tmp_path / "old_ev.json"), "--out",
+                     str(tmp_path / "old.yaml")]) == 0
+    assert read_calibration(str(tmp_path / "old.yaml")).expected_tre_rigid is not None
+    assert "an evaluate report of an earlier version" in capsys.readouterr().err
     assert cli.main(["export", str(report), "--out", str(tmp_path / "reg.yaml"),
                      "--parent-frame", "world"]) == 0
     assert "--child-frame tracker assumed" in capsys.readouterr().err
