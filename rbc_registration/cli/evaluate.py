@@ -94,8 +94,8 @@ def run(args: argparse.Namespace) -> int:
     """Bag -> the node's accumulation and model -> report (stdout, JSON, directory)."""
     from ..io.bag.reader import read_bag
     from ..io.csv_io import read_targets
-    from ..io.evaluation import (REPORT_FILES, evaluate_contents, print_summary,
-                                 with_warnings, write_report_dir)
+    from ..io.evaluation import (REPORT_FILES, ambiguous_points_line, evaluate_contents,
+                                 print_summary, with_warnings, write_report_dir)
     from ..io.report import write_json
     from ..pipeline.offline import infer_dimension, settings_for
     from ..pipeline.targets import Targets
@@ -137,9 +137,10 @@ def run(args: argparse.Namespace) -> int:
     print_summary(ev)
     from ..core.scale import implausible_metres
     large = implausible_metres(ev.model.destination)
+    ambiguous = ambiguous_points_line(ev, topics.working_point, topics.destination_point)
     # Every warning goes to stderr and into report.json / report.md (the blunder line is the
     # model state's, ev.warnings already).
-    ev = with_warnings(ev, ([large] if large else []) + unit_mismatch_lines(
+    ev = with_warnings(ev, [w for w in (ambiguous, large) if w] + unit_mismatch_lines(
         ev.model.working, ev.targets.working if ev.targets is not None else None, ev.report,
         ev.model.destination, ev.targets.destination if ev.targets is not None else None))
     for line in ev.warnings:

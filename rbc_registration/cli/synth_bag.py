@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.constants import CELLS, MAX_REPEATS
-from ..io.bag.records import PERIODS, STORAGES
+from ..io.bag.records import PERIODS, STORAGES, SYNTH_PERIOD_S
 from ..io.escape import terminal
 from .options import integer_in, node_name, number_in, seed
 
@@ -21,9 +21,10 @@ def add_parser(sub: Any) -> None:
     sb.add_argument("--seed", type=seed, default=0)
     sb.add_argument("--repeats", type=integer_in(1, MAX_REPEATS),
                     help="repeated measurements N (default: the cell's)")
-    sb.add_argument("--period", type=number_in(*PERIODS), default=0.02,
+    sb.add_argument("--period", type=number_in(*PERIODS), default=SYNTH_PERIOD_S,
                     help=f"seconds between measurements, {PERIODS[0]:g} to {PERIODS[1]:g} "
-                         "(default 0.02)")
+                         f"(default {SYNTH_PERIOD_S:g}: over twice the default pair_slop; "
+                         "with --points, a period up to twice pair_slop makes points ambiguous)")
     sb.add_argument("--points", action="store_true",
                     help="fiducials as PointStamped pairs without ids instead of FiducialPair")
     sb.add_argument("--working-frame", default="tracker")

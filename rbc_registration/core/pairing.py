@@ -15,6 +15,18 @@ stamp: its buffered points later than it by more than ``slop`` are dropped as ou
 its latest stamp is the new one. Otherwise a single future stamp would make every later point of
 the other stream look stale until a reset. A point merely late (back by less) is paired or
 dropped as before, and the points after it stay buffered.
+
+*Ambiguous* points: a working point and a destination point are one measurement only when each
+is the other's only point within ``slop`` among the points of the other stream seen so far
+(buffered, paired or refused). A point with two or more points of the other stream within
+``slop`` (streams whose period is at most ``slop``, or a clock step between the two devices) is
+refused as ambiguous, and so is a point whose only candidate has another candidate: which pair
+is right is not known from the stamps, and "nearest in time" silently pairs the wrong ones when
+the clocks are offset. A slop below half the measurement period never gives an ambiguous point.
+Pairs are made as soon as the second point arrives, so a pair whose second candidate arrives
+later is already made; that candidate is refused (and says so). Stamps that repeat (the
+stream's previous stamp again) are not checked: pairing then goes by arrival order
+(:attr:`PairingResult.repeated`).
 """
 
 from __future__ import annotations
@@ -62,6 +74,11 @@ class DroppedPoint(NamedTuple):
     stream: str  # "working" or "destination"
     point: StampedPoint
     reason: str
+    #: Refused as ambiguous (module docstring), not merely unpairable.
+    ambiguous: bool = False
+
+#: The advice in the reason of an ambiguous point.
+AMBIGUOUS_HINT = "lower pair_slop below half the measurement period"
 
 
 class PairingResult(NamedTuple):
@@ -90,8 +107,11 @@ class StampPairer:
         self._buffers: dict[str, deque[StampedPoint]] = {WORKING: deque(), DESTINATION: deque()}
         self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
         self._previous: dict[str, float] = {}       # each stream's last stamp
+        # The points seen recently (buffered, paired or refused), for the ambiguity rule.
+        self._seen: dict[str, deque[StampedPoint]] = {WORKING: deque(), DESTINATION: deque()}
         self.n_pairs = 0
         self.n_dropped = 0
+        self.n_ambiguous = 0    # points refused as ambiguous (also counted in n_dropped)
 
     @property
     def slop(self) -> float:
@@ -111,7 +131,7 @@ class StampPairer:
 
     def clear(self) -> None:
         """Drop every buffered point without reporting it (e.g. on reset)."""
-        for buf in self._buffers.values():
+        for buf in (*self._buffers.values(), *self._seen.values()):
             buf.clear()
         self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
         self._previous = {}
@@ -125,8 +145,8 @@ class StampPairer:
         return self.add(DESTINATION, xyz, frame_id, stamp_s)
 
     def add(self, stream: str, xyz: ArrayLike, frame_id: str, stamp_s: float) -> PairingResult:
-        """Add a point of ``stream`` and pair it with the other stream's nearest-in-time buffered
-        point within the slop, if any.
+        """Add a point of ``stream`` and pair it with the other stream's buffered point within
+        the slop, if that is the only candidate of either (module docstring).
 
         Coordinates are not validated here (NaN is passed on to the accumulator, which rejects it
         with its own reason); only the shape and stamp must be usable for pairing.
@@ -135,7 +155,8 @@ class StampPairer:
         :param xyz: the point, shape (3,).
         :param frame_id: its frame.
         :param stamp_s: its stamp [s].
-        :return: the pairs made (0 or 1) and the points dropped as stale or overflowing.
+        :return: the pairs made (0 or 1) and the points dropped as stale, overflowing or
+            ambiguous.
         :raises ValueError: on an unknown stream, a point that is not 3 numbers or a
             non-finite stamp (the point is not buffered).
         """
@@ -158,11 +179,14 @@ class StampPairer:
         # Points of the other stream older than stamp - slop cannot match this or later points.
         self._drop_stale(other, dropped)
         pairs: tuple[PointPair, ...] = ()
-        match = self._take_nearest(other, stamp)
+        ambiguous = not repeated and self._ambiguous(stream, point, dropped)
+        match = None if ambiguous else self._take_nearest(other, stamp)
         if match is not None:
             pair = PointPair(point, match) if stream == WORKING else PointPair(match, point)
             pairs = (pair,)
             self.n_pairs += 1
+        elif ambiguous:
+            pass        # refused, with its reason in `dropped`
         elif self._latest[other] > stamp + self._slop:
             # The other stream is already past this point's window: it can never be paired.
             dropped.append(DroppedPoint(stream, point, f"no {other} point within "
@@ -174,7 +198,68 @@ class StampPairer:
                 dropped.append(DroppedPoint(stream, buf.popleft(), f"{stream} buffer full "
                                             f"({self.max_buffer} unmatched points)"))
         self.n_dropped += len(dropped)
+        self.n_ambiguous += sum(d.ambiguous for d in dropped)
         return PairingResult(pairs, tuple(dropped), repeated)
+
+    def _ambiguous(self, stream: str, point: StampedPoint, dropped: list[DroppedPoint]) -> bool:
+        """Whether ``point`` is ambiguous (module docstring), then refused with its reason in
+        ``dropped``, with its only candidate when that is buffered (which has two now). Records
+        ``point`` as seen."""
+        other, slop, stamp = _OTHER[stream], self._slop, point.stamp_s
+        near = self._near(other, stamp)
+        self._remember(stream, point)
+        if not near:
+            return False
+        where = f"within {slop:g} s of {stream} stamp {stamp:.9f}"
+        if len(near) >= 2:
+            stamps = ", ".join(f"{p.stamp_s:.9f}" for p in near[:3])
+            dropped.append(DroppedPoint(stream, point, f"ambiguous: {len(near)} {other} points "
+                                        f"{where} ({stamps}); {AMBIGUOUS_HINT}", True))
+            self._refuse_buffered(other, near, f"ambiguous: within {slop:g} s of {stream} "
+                                  f"stamp {stamp:.9f}, which has {len(near)} {other} points "
+                                  f"within it; {AMBIGUOUS_HINT}", dropped)
+            return True
+        candidate = near[0]
+        rivals = [p for p in self._near(stream, candidate.stamp_s) if p is not point]
+        buffered = any(p is candidate for p in self._buffers[other])
+        if buffered and not rivals:
+            return False
+        rival = f" and of {stream} stamp {rivals[0].stamp_s:.9f}" if rivals else ""
+        dropped.append(DroppedPoint(stream, point, f"ambiguous: the {other} point at "
+                                    f"{candidate.stamp_s:.9f} is {where}{rival}"
+                                    + ("" if buffered else " (paired or refused before)")
+                                    + f"; {AMBIGUOUS_HINT}", True))
+        if buffered:
+            self._refuse_buffered(other, near, f"ambiguous: {stream} points at "
+                                  f"{rivals[0].stamp_s:.9f} and {stamp:.9f} are within "
+                                  f"{slop:g} s of it; {AMBIGUOUS_HINT}", dropped)
+        return True
+
+    def _refuse_buffered(self, stream: str, points: list[StampedPoint], reason: str,
+                         dropped: list[DroppedPoint]) -> None:
+        """Take those of ``points`` still buffered out of the buffer of ``stream``, refused as
+        ambiguous with ``reason``."""
+        buf = self._buffers[stream]
+        refused = [p for p in buf if any(p is q for q in points)]
+        if refused:
+            self._buffers[stream] = deque(p for p in buf if not any(p is q for q in refused))
+            dropped += [DroppedPoint(stream, p, reason, True) for p in refused]
+
+    def _near(self, stream: str, stamp: float) -> list[StampedPoint]:
+        """The points of ``stream`` seen or buffered within the slop of ``stamp``."""
+        seen = self._seen[stream]
+        extra = [p for p in self._buffers[stream] if not any(p is q for q in seen)]
+        return [p for p in (*seen, *extra) if abs(p.stamp_s - stamp) <= self._slop]
+
+    def _remember(self, stream: str, point: StampedPoint) -> None:
+        """Add ``point`` to the seen points of ``stream``; forget those no later point can be
+        near (older than the stream's latest stamp by more than twice the slop), at most
+        ``max_buffer`` besides the buffered ones."""
+        seen = self._seen[stream]
+        seen.append(point)
+        horizon = self._latest[stream] - 2 * self._slop
+        while seen and (seen[0].stamp_s < horizon or len(seen) > self.max_buffer):
+            seen.popleft()
 
     def discard(self, stream: str, xyz: ArrayLike, stamp_s: float) -> bool:
         """Drop the buffered point of ``stream`` at ``xyz`` and ``stamp_s`` (recorded otherwise,
@@ -198,6 +283,8 @@ class StampPairer:
             else:
                 keep.append(old)
         self._buffers[stream] = keep
+        self._seen[stream] = deque(p for p in self._seen[stream]
+                                   if p.stamp_s <= stamp + self._slop)
         self._latest[stream] = max((p.stamp_s for p in keep), default=stamp)
 
     def _drop_stale(self, stream: str, dropped: list[DroppedPoint]) -> None:

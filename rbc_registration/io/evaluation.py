@@ -73,6 +73,17 @@ def evaluate_contents(contents: BagContents, settings: Settings,
     return with_warnings(out, contents.warnings + ((ev.warning,) if ev.warning else ()))
 
 
+def ambiguous_points_line(ev: Evaluation, working_topic: str, destination_topic: str) -> str:
+    """The warning when points were refused as ambiguous (two points of the other stream within
+    ``pair_slop``, :mod:`rbc_registration.core.pairing`), or ""."""
+    n = ev.rejected.get("ambiguous", 0)
+    if not n:
+        return ""
+    return (f"{n} point(s) of {working_topic} and {destination_topic} refused as ambiguous: "
+            f"within pair_slop ({ev.settings.pair_slop:g} s) of two points of the other topic; "
+            "lower pair_slop below half the measurement period (-p pair_slop:=...)")
+
+
 def with_warnings(ev: Evaluation, lines: Sequence[str]) -> Evaluation:
     """``ev`` with ``lines`` added to its warnings and to its report's ``warnings`` (so that
     ``report.json`` and ``report.md`` hold what the command warned about)."""

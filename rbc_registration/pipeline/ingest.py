@@ -154,7 +154,8 @@ class Ingest:
     def point(self, stream: str, xyz: Any, frame_id: str, stamp_s: float) -> list[PointPair]:
         """One ``~/working_point`` / ``~/destination_point``: the pairs it completed that were
         accepted (empty: none; truthy when the model must be rebuilt). Unpairable points are
-        rejected as malformed."""
+        rejected as malformed, ambiguous ones (:mod:`~rbc_registration.core.pairing`) as
+        ambiguous."""
         with self._lock:
             try:
                 result = self._pairer.add(stream, xyz, frame_id, stamp_s)
@@ -162,7 +163,8 @@ class Ingest:
                 self._rejected(self._acc.reject("malformed", str(exc)))
                 return []
             for dropped in result.dropped:
-                self._rejected(self._acc.reject("malformed", f"unpaired {dropped.stream} point "
+                reason = "ambiguous" if dropped.ambiguous else "malformed"
+                self._rejected(self._acc.reject(reason, f"unpaired {dropped.stream} point "
                                                 f"dropped: {dropped.reason}"))
             if result.repeated and stream not in self.stamp_warnings:
                 self.stamp_warnings[stream] = repeated_stamps(stream, stamp_s)

@@ -141,7 +141,7 @@ def test_rejections_are_counted_like_the_node(tmp_path):
     write_bag(bag, msgs, progress=False)
     report = run_json(["evaluate", str(bag), "--quiet"], tmp_path / "e.json")
     assert report["bag"]["rejected"] == {"frame": 1, "nonfinite": 1, "outlier": 0,
-                                         "malformed": 0, "stale": 0}
+                                         "malformed": 0, "stale": 0, "ambiguous": 0}
     assert report["n_fiducials"] == len(cell.fiducial_ids) - 2
 
 
@@ -366,3 +366,37 @@ def test_report_md_quotes_the_reason_in_mm(tmp_path):
     assert escape.markdown(f"median error {1e3 * best:.3g} vs "
                            f"{1e3 * cv['uncorrected']['median']:.3g}") in md
     assert escape.markdown(metres) not in md
+
+
+def test_ambiguous_points_are_refused_with_one_warning(tmp_path, capsys):
+    """Point streams 20 ms apart with the default 20 ms pair_slop (synth-bag's earlier
+    default), the destination clock 12 ms ahead: nearest in time paired them silently; now the
+    ambiguous points are refused, counted, and one warning line names the topics, the count
+    and the hint. At 50 ms (the default now) nothing is ambiguous and the report is that of
+    the FiducialPair bag."""
+    cell = make_cell("RA", seed=0)
+    msgs = [m._replace(stamp_ns=m.stamp_ns + 12_000_000) if m.topic.endswith("destination_point")
+            else m for m in cell_messages(cell, period_s=0.02, points=True)]
+    write_bag(tmp_path / "near", msgs, progress=False)
+    assert cli.main(["evaluate", str(tmp_path / "near"), "--quiet"]) == 2   # no model
+    err = capsys.readouterr().err
+    assert "ambiguous" in err and "Traceback" not in err
+    write_bag(tmp_path / "half", msgs[:4] + [m for m in cell_messages(cell, points=True,
+                                                                      start_ns=2 * 10**18)],
+              progress=False)
+    rep = run_json(["evaluate", str(tmp_path / "half"), "--quiet"], tmp_path / "h.json")
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if "ambiguous" in x]
+    assert len(lines) == 1 and rep["bag"]["rejected"]["ambiguous"] >= 1, err
+    assert (f"point(s) of {DEFAULT_TOPICS.working_point} and {DEFAULT_TOPICS.destination_point}"
+            " refused as ambiguous") in lines[0]
+    assert "lower pair_slop below half the measurement period" in lines[0]
+    assert lines[0].split("warning: ", 1)[1] in rep["warnings"]
+    write_bag(tmp_path / "points", cell_messages(cell, points=True), progress=False)
+    write_bag(tmp_path / "pairs", cell_messages(cell), progress=False)
+    a = run_json(["evaluate", str(tmp_path / "pairs"), "--quiet"], tmp_path / "a.json")
+    b = run_json(["evaluate", str(tmp_path / "points"), "--quiet"], tmp_path / "b.json")
+    assert "ambiguous" not in capsys.readouterr().err and b["bag"]["rejected"]["ambiguous"] == 0
+    for f in a["fiducials"] + b["fiducials"]:
+        f.pop("id")
+    assert_same_numbers({k: a[k] for k in REGISTER_KEYS}, b)

@@ -22,12 +22,20 @@ def test_pairs_within_slop_either_order():
     assert p.pending("working") == p.pending("destination") == 0 and p.n_pairs == 2
 
 
-def test_nearest_in_time_wins():
+def test_two_candidates_within_the_slop_are_ambiguous_not_nearest_in_time():
+    """Nearest in time won: with two destination points within the slop, the working point was
+    paired with the nearer one silently, the wrong one under a clock offset (a review: 11 of 39
+    measurements mispaired). The point is refused as ambiguous, with the hint."""
     p = StampPairer(slop=0.05)
     p.add_destination([1, 0, 0], "world", 1.00)
     p.add_destination([2, 0, 0], "world", 1.03)
     res = p.add_working([0, 0, 0], "tracker", 1.04)
-    assert res.pairs[0].destination.xyz == (2, 0, 0)
+    assert res.pairs == () and [d.stream for d in res.dropped] == [
+        "working", "destination", "destination"]      # both candidates with it
+    assert res.dropped[0].ambiguous and "ambiguous: 2 destination points within 0.05 s" in \
+        res.dropped[0].reason and "lower pair_slop below half the measurement period" in \
+        res.dropped[0].reason
+    assert p.n_ambiguous == 3 and p.n_pairs == 0
 
 
 def test_stale_points_are_dropped_and_counted():
@@ -120,7 +128,8 @@ def test_points_slightly_out_of_order_within_the_slop_still_pair():
     p.add_working([1, 0, 0], "t", 10.010)
     p.add_working([2, 0, 0], "t", 10.000)     # back by less than the slop: no restart
     assert p.pending("working") == 2
-    assert p.add_destination([1, 0, 0], "w", 10.011).pairs[0].working.xyz == (1, 0, 0)
+    # (only the first within the slop of the destination point: two would be ambiguous)
+    assert p.add_destination([1, 0, 0], "w", 10.025).pairs[0].working.xyz == (1, 0, 0)
 
 
 def test_a_late_point_does_not_cost_the_pairs_after_it():
@@ -151,3 +160,82 @@ def test_repeated_stamps_are_flagged():
     assert p.add_working([1, 0, 0], "t", 0.0).repeated
     assert not p.add_destination([0, 0, 0], "w", 0.0).repeated     # per stream
     assert not p.add_working([2, 0, 0], "t", 1.0).repeated
+
+
+def test_a_candidate_already_paired_makes_the_later_point_ambiguous():
+    """W 0.000 pairs with D 0.012 at once; W 0.020 is within the slop of D 0.012 too: it is
+    refused as ambiguous (its only candidate is taken), not kept to pair with the next one."""
+    p = StampPairer(slop=0.02)
+    p.add_working([0, 0, 0], "t", 0.000)
+    assert len(p.add_destination([0, 0, 0], "w", 0.012).pairs) == 1
+    res = p.add_working([1, 0, 0], "t", 0.020)
+    assert res.pairs == () and res.dropped[0].ambiguous
+    assert "destination point at 0.012000000" in res.dropped[0].reason
+    assert "paired or refused before" in res.dropped[0].reason
+    assert p.pending("working") == 0
+
+
+def test_the_candidates_of_an_ambiguous_point_are_refused_with_it():
+    """W 0.000 has two destination points within the slop: it and both are refused (each has a
+    contested point as its candidate), not dropped later as unpaired (malformed)."""
+    p = StampPairer(slop=0.02)
+    p.add_destination([0, 0, 0], "w", -0.012)
+    p.add_destination([1, 0, 0], "w", 0.010)
+    res = p.add_working([0, 0, 0], "t", 0.000)
+    assert sorted((d.stream, d.point.stamp_s) for d in res.dropped if d.ambiguous) == [
+        ("destination", -0.012), ("destination", 0.010), ("working", 0.0)]
+    assert p.pending("destination") == 0 and p.n_ambiguous == 3
+
+
+def test_a_point_near_two_buffered_points_is_refused_with_them():
+    p = StampPairer(slop=0.02)
+    p.add_working([0, 0, 0], "t", -0.005)
+    p.add_working([0, 0, 0], "t", 0.000)      # two working points within the slop of D 0.010
+    res = p.add_destination([1, 0, 0], "w", 0.010)
+    assert res.pairs == () and len([d for d in res.dropped if d.ambiguous]) == 3
+    assert p.pending("working") == 0
+
+
+def stream_events(period, offset, delay_destination, n=39):
+    """Working point k at 100 + k period, destination point k at that + offset; the destination
+    point delivered ``delay_destination`` periods late (arrival order)."""
+    events = []
+    for k in range(n + delay_destination):
+        if k < n:
+            events.append(("working", 100.0 + k * period, k))
+        j = k - delay_destination
+        if 0 <= j < n:
+            events.append(("destination", 100.0 + j * period + offset, j))
+    return events
+
+
+def feed(pairer, events):
+    pairs, dropped = [], []
+    for stream, stamp, k in events:
+        res = pairer.add(stream, [k, 0, 0], "f", stamp)
+        pairs += res.pairs
+        dropped += res.dropped
+    return pairs, dropped
+
+
+@pytest.mark.parametrize("offset, delay", [(0.012, 0), (0.012, 1), (-0.008, 1), (0.004, 2)])
+def test_a_period_within_the_slop_pairs_nothing_wrongly(offset, delay):
+    """Streams 20 ms apart with the default 20 ms slop after a clock step between the devices:
+    the nearest-in-time rule mispaired up to 38 of 39 silently. Now at most the first pair (made
+    before a second candidate existed) is kept; every later point is refused and counted."""
+    pairer = StampPairer(slop=0.02)
+    pairs, dropped = feed(pairer, stream_events(0.02, offset, delay))
+    assert len(pairs) <= 1 and all(pr.working.xyz == pr.destination.xyz for pr in pairs)
+    assert pairer.n_ambiguous >= 39 * 2 - 4
+    assert all("lower pair_slop below half the measurement period" in d.reason
+               for d in dropped if d.ambiguous)
+
+
+@pytest.mark.parametrize("offset, delay", [(0.0, 0), (0.019, 0), (-0.019, 1), (0.01, 2)])
+def test_a_slop_below_half_the_period_is_never_ambiguous(offset, delay):
+    """Period 50 ms, slop 20 ms (< 25 ms): any offset within the slop, any delivery delay:
+    every point pairs with its own partner, nothing is ambiguous."""
+    pairer = StampPairer(slop=0.02)
+    pairs, dropped = feed(pairer, stream_events(0.05, offset, delay))
+    assert len(pairs) == 39 and dropped == [] and pairer.n_ambiguous == 0
+    assert all(pr.working.xyz == pr.destination.xyz for pr in pairs)

@@ -13,7 +13,8 @@ from rbc_registration import cli
 from rbc_registration.core.synthetic import make_cell
 from rbc_registration.io.bag import typestore
 from rbc_registration.io.bag.reader import read_bag, read_raw
-from rbc_registration.io.bag.records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, BagError,
+from rbc_registration.io.bag.records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, SYNTH_PERIOD_S,
+                                             BagError,
                                              PairMessage, PointMessage, Topics)
 from rbc_registration.io.bag.synthetic import cell_messages
 from rbc_registration.io.bag.writer import write_bag
@@ -56,7 +57,7 @@ def test_round_trip_in_metres_with_increasing_stamps(bags, cell_a, storage):
     assert {m.working_frame for m in contents.inputs} == {"tracker"}
     assert {m.destination_frame for m in contents.inputs} == {"world"}
     stamps = np.array([m.stamp_s for m in contents.inputs + contents.targets])
-    np.testing.assert_allclose(np.diff(stamps), 0.02, atol=1e-6)
+    np.testing.assert_allclose(np.diff(stamps), SYNTH_PERIOD_S, atol=1e-6)   # the default
     np.testing.assert_array_equal([m.destination for m in contents.targets[:16]],
                                   cell_a.target_truth * 1e-3)
 

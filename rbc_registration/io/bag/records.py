@@ -31,11 +31,16 @@ MAX_REPLAY_WAIT = 3600.0
 #: ``synth-bag --period``: seconds between measurements (stamps are in whole nanoseconds and
 #: the bag must end before the int64 nanosecond stamps overflow).
 PERIODS = (1e-9, 3600.0)
+#: Its default: more than twice the default ``pair_slop`` (0.02 s), so that the point streams of
+#: ``--points`` are never ambiguous (:mod:`rbc_registration.core.pairing`; the earlier default
+#: 0.02 s, equal to the slop, put every point within the slop of two points of the other stream).
+SYNTH_PERIOD_S = 0.05
 #: ``OutMessage.kind`` -> the message type written.
 MESSAGE_TYPES = {"pair": FIDUCIAL_PAIR, "point": POINT_STAMPED}
 
 __all__ = ["DEFAULT_TOPICS", "FIDUCIAL_PAIR", "INTERFACE_PACKAGE", "MESSAGE_TYPES",
-           "POINT_STAMPED", "STORAGES", "BagContents", "BagError", "OutMessage", "PairMessage",
+           "POINT_STAMPED", "STORAGES", "SYNTH_PERIOD_S", "BagContents", "BagError",
+           "OutMessage", "PairMessage",
            "PointMessage", "RawMessage", "Topics", "node_name_error", "topic_name_error"]
 
 

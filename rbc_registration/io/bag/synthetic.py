@@ -8,7 +8,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from ...core.constants import M_PER_MM
-from .records import DEFAULT_TOPICS, OutMessage, Topics
+from .records import DEFAULT_TOPICS, SYNTH_PERIOD_S, OutMessage, Topics
 
 SYNTH_START_NS = 1_700_000_000 * 1_000_000_000  # first stamp of a synthetic bag
 
@@ -28,7 +28,7 @@ def _xyz(p: np.ndarray) -> tuple[float, float, float]:
 
 
 def cell_messages(cell: Any, topics: Topics = DEFAULT_TOPICS, working_frame: str = "tracker",
-                  destination_frame: str = "world", period_s: float = 0.02,
+                  destination_frame: str = "world", period_s: float = SYNTH_PERIOD_S,
                   points: bool = False, start_ns: int = SYNTH_START_NS) -> Iterator[OutMessage]:
     """The messages of a synthetic cell (mm) as recorded from a robot visiting the holes, in
     metres: every fiducial once, then the repeated ones again, pass by pass; then the targets

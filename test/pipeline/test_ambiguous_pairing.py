@@ -1,0 +1,78 @@
+"""Ambiguous point pairs through the node's ingestion (pure: no rclpy): counted under their own
+reason, never a measurement; unambiguous streams ingested bit for bit as before."""
+
+import numpy as np
+import pytest
+
+from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.pairing import StampPairer
+from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io.bag.records import SYNTH_PERIOD_S
+from rbc_registration.io.bag.synthetic import cell_messages
+from rbc_registration.pipeline.ingest import Ingest
+from rbc_registration.pipeline.settings import SPECS
+
+
+class Log:
+    def __init__(self):
+        self.lines = []
+
+    def warning(self, text):
+        self.lines.append(text)
+
+    error = info = warning
+
+
+class NearestInTime(StampPairer):
+    """The pairer without the ambiguity rule: the nearest buffered point within the slop wins
+    (the rule before it)."""
+
+    def _ambiguous(self, stream, point, dropped):
+        return False
+
+
+def ingest_points(messages, pairer):
+    acc = FiducialAccumulator(3, "tracker", "world", 0.005, 0.0)
+    log = Log()
+    ingest = Ingest(acc, pairer, None, log)
+    for m in messages:
+        stream = "working" if m.topic.endswith("working_point") else "destination"
+        ingest.point(stream, m.xyz, m.frame_id, m.stamp_ns / 1e9)
+    return ingest, acc, log
+
+
+def test_the_synthetic_default_period_is_over_twice_the_default_slop():
+    assert SYNTH_PERIOD_S > 2 * SPECS["pair_slop"].default
+
+
+@pytest.mark.parametrize("cell, seed", [("A", 3), ("RA", 0)])
+def test_unambiguous_streams_are_ingested_bit_for_bit_as_before(cell, seed):
+    """A synthetic --points stream at the default period: the same fiducials, bit for bit, as
+    the nearest-in-time rule gives, and nothing refused."""
+    messages = [m for m in cell_messages(make_cell(cell, seed=seed), points=True)
+                if m.topic.endswith("_point")]
+    new, acc, _ = ingest_points(messages, StampPairer(0.02))
+    old, _, _ = ingest_points(messages, NearestInTime(0.02))
+    a, b = new.fiducial_set(), old.fiducial_set()
+    assert a.ids == b.ids and a.n_measurements == b.n_measurements > 0
+    assert np.array_equal(a.working, b.working) and np.array_equal(a.destination, b.destination)
+    for x, y in zip(a.repeat_stats, b.repeat_stats):
+        assert np.array_equal(x, y, equal_nan=True)
+    assert sum(acc.rejected.values()) == 0
+
+
+def test_ambiguous_points_are_counted_as_ambiguous_and_never_measured():
+    """Period 20 ms = the slop, destination clock stepped by 12 ms: the nearest-in-time rule
+    made a measurement of nearly every point; now at most the first pair (made before its second
+    candidate existed) is one, the rest are rejected as ambiguous, logged with the hint."""
+    cell = make_cell("RA", seed=0)
+    messages = [m._replace(stamp_ns=m.stamp_ns + (12_000_000 if "destination" in m.topic else 0))
+                for m in cell_messages(cell, period_s=0.02, points=True)
+                if m.topic.endswith("_point")]
+    ingest, acc, log = ingest_points(messages, StampPairer(0.02))
+    _, old_acc, _ = ingest_points(messages, NearestInTime(0.02))
+    assert old_acc.n_measurements > 0.9 * len(messages) / 2          # what it was
+    assert acc.n_measurements <= 1
+    assert acc.rejected["ambiguous"] >= len(messages) - 4 and acc.rejected["malformed"] == 0
+    assert any("rejected measurement (ambiguous" in line and "lower pair_slop below half the "
+               "measurement period" in line for line in log.lines)
