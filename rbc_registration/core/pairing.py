@@ -263,12 +263,14 @@ class StampPairer:
 
     def discard(self, stream: str, xyz: ArrayLike, stamp_s: float) -> bool:
         """Drop the buffered point of ``stream`` at ``xyz`` and ``stamp_s`` (recorded otherwise,
-        e.g. by ``~/take_sample``) without reporting it; whether there was one."""
+        e.g. by ``~/take_sample``) without reporting it; whether there was one. It is no longer
+        a candidate of the ambiguity rule either: its stamp partner is buffered as usual."""
         key = (tuple(float(v) for v in np.asarray(xyz, dtype=np.float64)), float(stamp_s))
         buf = self._buffers[stream]
         for k, point in enumerate(buf):
             if (point.xyz, point.stamp_s) == key:
                 del buf[k]
+                self._seen[stream] = deque(p for p in self._seen[stream] if p is not point)
                 return True
         return False
 

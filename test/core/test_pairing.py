@@ -239,3 +239,14 @@ def test_a_slop_below_half_the_period_is_never_ambiguous(offset, delay):
     pairs, dropped = feed(pairer, stream_events(0.05, offset, delay))
     assert len(pairs) == 39 and dropped == [] and pairer.n_ambiguous == 0
     assert all(pr.working.xyz == pr.destination.xyz for pr in pairs)
+
+
+def test_a_discarded_point_is_no_candidate_of_the_ambiguity_rule():
+    """~/take_sample records a buffered working point and discards it: its destination stamp
+    partner is buffered as before, not refused as ambiguous ('paired or refused before')."""
+    p = StampPairer(slop=0.02)
+    p.add_working([1.0, 2.0, 3.0], "tracker", 5.0)
+    assert p.discard("working", [1.0, 2.0, 3.0], 5.0)
+    r = p.add_destination([4.0, 5.0, 6.0], "world", 5.0)
+    assert r.pairs == () and r.dropped == () and p.pending("destination") == 1
+    assert p.n_ambiguous == 0
