@@ -93,6 +93,7 @@ def parse_params(items: list[str]) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     """Bag -> the node's accumulation and model -> report (stdout, JSON, directory)."""
     from ..io.bag.reader import read_bag
+    from ..io.bag.records import PointMessage
     from ..io.csv_io import read_targets
     from ..io.evaluation import (REPORT_FILES, ambiguous_points_line, evaluate_contents,
                                  print_summary, with_warnings, write_report_dir)
@@ -140,7 +141,11 @@ def run(args: argparse.Namespace) -> int:
     ambiguous = ambiguous_points_line(ev, topics.working_point, topics.destination_point)
     # Every warning goes to stderr and into report.json / report.md (the blunder line is the
     # model state's, ev.warnings already).
-    ev = with_warnings(ev, [w for w in (ambiguous, large) if w] + unit_mismatch_lines(
+    sample = ("point_mode 'sample': a bag does not record the ~/take_sample calls, so evaluate "
+              "pairs the working and destination points by their stamps (point_mode 'pair')") \
+        if settings.point_mode == "sample" and any(isinstance(m, PointMessage)
+                                                   for m in contents.inputs) else ""
+    ev = with_warnings(ev, [w for w in (sample, ambiguous, large) if w] + unit_mismatch_lines(
         ev.model.working, ev.targets.working if ev.targets is not None else None, ev.report,
         ev.model.destination, ev.targets.destination if ev.targets is not None else None))
     for line in ev.warnings:

@@ -400,3 +400,18 @@ def test_ambiguous_points_are_refused_with_one_warning(tmp_path, capsys):
     for f in a["fiducials"] + b["fiducials"]:
         f.pop("id")
     assert_same_numbers({k: a[k] for k in REGISTER_KEYS}, b)
+
+
+def test_point_mode_sample_is_said_to_be_paired_by_stamps(tmp_path, capsys):
+    """-p point_mode:=sample was ignored without a word: a bag has no ~/take_sample calls."""
+    cell = make_cell("A", seed=0)
+    bag = tmp_path / "points"
+    write_bag(bag, cell_messages(cell, points=True), progress=False)
+    out = tmp_path / "r.json"
+    assert cli.main(["evaluate", str(bag), "--quiet", "-p", "point_mode:=sample",
+                     "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("point_mode 'sample': a bag does not record the ~/take_sample calls") == 1
+    assert any("point_mode 'sample'" in w for w in json.loads(out.read_text())["warnings"])
+    assert cli.main(["evaluate", str(bag), "--quiet"]) == 0
+    assert "point_mode" not in capsys.readouterr().err
