@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
 
     inputs = [("bag", args.bag), ("--targets", args.targets)]
     refuse_outputs_onto_inputs([("--json", args.json), ("--out", args.out)], inputs,
-                               REPORT_FILES)
+                               REPORT_FILES, directories=("--out",))
     params = parse_params(args.param)
     for key, value in (("sigma", args.sigma), ("sigma_axis", args.sigma_axis),
                        ("decision", args.decision), ("restoration", args.restoration),

@@ -186,18 +186,50 @@ def _with_children(path: Path) -> Iterable[Path]:
             pass
 
 
+def unwritable(out: Path, directory: bool = False) -> str:
+    """Why the output ``out`` (a file, or with ``directory`` a directory) cannot be written, or
+    "" (checked before a long run; the write itself may still fail, e.g. on a full disk). Missing
+    parent directories are created by the writers (``write_json``, ``write_calibration``, the
+    figures, ``--out DIR``): the nearest existing one must be a writable directory."""
+    if out.exists():
+        if directory != out.is_dir():
+            return "it is a directory" if out.is_dir() else "it exists and is not a directory"
+        if not os.access(out, os.W_OK | (os.X_OK if directory else 0)):
+            return "it is not writable"
+        if directory:
+            return ""
+    ancestor = out.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        return f"{terminal(str(ancestor))} is not a directory"
+    return "" if os.access(ancestor, os.W_OK | os.X_OK) else \
+        f"its directory {terminal(str(ancestor))} is not writable"
+
+
+def _inside(path: Path, directory: Path) -> bool:
+    try:
+        return path.resolve().is_relative_to(directory.resolve())
+    except (OSError, RuntimeError):
+        return False
+
+
 def refuse_outputs_onto_inputs(outputs: Sequence[tuple[str, Optional[Path]]],
                                inputs: Sequence[tuple[str, Optional[Path]]],
-                               directory_files: Sequence[str] = ()) -> None:
-    """Refuse, before anything is written, an output that is one of the inputs, or two outputs
-    that are one file.
+                               directory_files: Sequence[str] = (),
+                               directories: Sequence[str] = ()) -> None:
+    """Refuse, before anything is written (and before a long run), an output that is one of the
+    inputs or inside an input directory (a bag), two outputs that are one file, and an output
+    that cannot be written (:func:`unwritable`).
 
     :param outputs: ``(option, path)`` of every output (``None``: not given).
     :param inputs: ``(what, path)`` of every input (``None``: not given); a directory input (a
         bag) counts with the files in it.
     :param directory_files: names of the files written into an output directory (``--out DIR``
         of ``evaluate``): each of them is an output too (of every output: a file has none).
-    :raises ValueError: naming the option, the output and the input it would overwrite.
+    :param directories: the options of ``outputs`` that name a directory (created if missing).
+    :raises ValueError: naming the option, the output and the input it would overwrite, or why
+        it cannot be written.
     """
     for option, out in outputs:
         if out is None:
@@ -206,6 +238,10 @@ def refuse_outputs_onto_inputs(outputs: Sequence[tuple[str, Optional[Path]]],
         for what, given in inputs:
             if given is None:
                 continue
+            if given.is_dir() and _inside(out, given):
+                raise ValueError(f"{option} {terminal(str(out))} is inside the input {what} "
+                                 f"{terminal(str(given))}: refusing to write into an input "
+                                 "directory")
             for src in _with_children(given):
                 for dst in candidates:
                     if _same_file(dst, src):
@@ -219,3 +255,7 @@ def refuse_outputs_onto_inputs(outputs: Sequence[tuple[str, Optional[Path]]],
             if any(_same_file(a, b) for a in mine for b in theirs):
                 raise ValueError(f"{option} {out} and {other} {path} are the same file (or one "
                                  "writes into the other): one would overwrite the other")
+    for option, out in outputs:
+        why = "" if out is None else unwritable(out, option in directories)
+        if why:
+            raise ValueError(f"{option} {terminal(str(out))} cannot be written: {why}")

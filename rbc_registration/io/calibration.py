@@ -282,6 +282,7 @@ def write_calibration(path: str, cal: Calibration) -> None:
     text = header + yaml.safe_dump(cal.to_mapping(), sort_keys=False, allow_unicode=True,
                                    default_flow_style=None, width=100)
     directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
     tmp = os.path.join(directory, f".{os.path.basename(path)}.{os.getpid()}."
                                   f"{uuid.uuid4().hex}.tmp")
     try:

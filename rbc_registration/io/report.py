@@ -95,7 +95,9 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
 
 
 def write_json(report: dict[str, Any], path: Path | str) -> None:
-    """Write a report as indented JSON (NaN never appears: it is null)."""
+    """Write a report as indented JSON (NaN never appears: it is null); missing parent
+    directories are created."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
 
 

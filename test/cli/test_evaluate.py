@@ -415,3 +415,30 @@ def test_point_mode_sample_is_said_to_be_paired_by_stamps(tmp_path, capsys):
     assert any("point_mode 'sample'" in w for w in json.loads(out.read_text())["warnings"])
     assert cli.main(["evaluate", str(bag), "--quiet"]) == 0
     assert "point_mode" not in capsys.readouterr().err
+
+
+def test_outputs_into_the_bag_or_unwritable_are_refused_before_reading(tmp_path, capsys):
+    """A review: --json BAG/x.json wrote into the bag directory, and a --json in a missing
+    directory failed after the whole evaluation with a raw Errno."""
+    cell = make_cell("A", seed=0)
+    bag = tmp_path / "bag"
+    write_bag(bag, cell_messages(cell), progress=False)
+    before = sorted(p.name for p in bag.iterdir())
+    cases = [(["--json", str(bag / "x.json")], "is inside the input bag"),
+             (["--out", str(bag / "report")], "is inside the input bag"),
+             (["--json", str(tmp_path)], "cannot be written: it is a directory"),
+             (["--out", str(bag / "metadata.yaml")], "is inside the input bag")]
+    (tmp_path / "file").write_text("x")
+    cases += [(["--out", str(tmp_path / "file")],
+               "cannot be written: it exists and is not a directory"),
+              (["--json", str(tmp_path / "file" / "r.json")],
+               f"cannot be written: {tmp_path / 'file'} is not a directory")]
+    for args, why in cases:
+        assert cli.main(["evaluate", str(bag), "--quiet", *args]) == 2, args
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and why in err[0] and "reading" not in err[0], (args, err)
+    assert sorted(p.name for p in bag.iterdir()) == before
+    out = tmp_path / "new" / "deeper"                       # outputs create their parents
+    assert cli.main(["evaluate", str(bag), "--quiet", "--out", str(out), "--json",
+                     str(tmp_path / "new2" / "r.json")]) == 0
+    assert (out / "report.json").exists() and (tmp_path / "new2" / "r.json").exists()
