@@ -54,7 +54,7 @@ def topics_from_args(args: argparse.Namespace) -> tuple[Any, list[str]]:
     if node is None:
         # --fiducial-topic /cell_a/reg/fiducial_pairs: the targets are /cell_a/reg/targets (the
         # node's own namespace), not /registration_node/targets, a topic such a bag lacks
-        parents = {t.rstrip("/").rsplit("/", 1)[0] for t in explicit.values()}
+        parents = {t.rstrip("/").rpartition("/")[0] for t in explicit.values()}
         parents.discard("")
         node = parents.pop() if len(parents) == 1 else "registration_node"
     return Topics.for_node(node)._replace(**explicit), list(explicit.values())
