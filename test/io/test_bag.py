@@ -195,10 +195,12 @@ def test_every_topic_leaves_out_one_of_another_definition_with_a_line(tmp_path):
     """replay reads every topic by default: an unrelated topic recorded with another definition
     (e.g. another ROS release's) is left out with one line, not the whole bag; named, refused."""
     store = get_typestore(Stores.ROS2_KILTED)
+    other = get_typestore(Stores.EMPTY)                     # another release's Int32
+    other.register(get_types_from_msg("int64 data\n", "std_msgs/msg/Int32"))
     bag = tmp_path / "mixed"
     with Writer(bag, version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
         odd = w.add_connection("/odd", "std_msgs/msg/Int32", msgdef="int64 data\n",
-                               rihs01="RIHS01_" + "ab" * 32)      # another release's Int32
+                               rihs01=other.hash_rihs01("std_msgs/msg/Int32"))
         good = w.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
         msg = store.types["std_msgs/msg/String"](data="hello")
         w.write(good, 5, store.serialize_cdr(msg, "std_msgs/msg/String"))
