@@ -240,15 +240,17 @@ class StampPairer:
         """Take those of ``points`` still buffered out of the buffer of ``stream``, refused as
         ambiguous with ``reason``."""
         buf = self._buffers[stream]
-        refused = [p for p in buf if any(p is q for q in points)]
+        chosen = {id(q) for q in points}               # by identity: points may be equal
+        refused = [p for p in buf if id(p) in chosen]
         if refused:
-            self._buffers[stream] = deque(p for p in buf if not any(p is q for q in refused))
+            self._buffers[stream] = deque(p for p in buf if id(p) not in chosen)
             dropped += [DroppedPoint(stream, p, reason, True) for p in refused]
 
     def _near(self, stream: str, stamp: float) -> list[StampedPoint]:
         """The points of ``stream`` seen or buffered within the slop of ``stamp``."""
         seen = self._seen[stream]
-        extra = [p for p in self._buffers[stream] if not any(p is q for q in seen)]
+        in_seen = {id(q) for q in seen}
+        extra = [p for p in self._buffers[stream] if id(p) not in in_seen]
         return [p for p in (*seen, *extra) if abs(p.stamp_s - stamp) <= self._slop]
 
     def _remember(self, stream: str, point: StampedPoint) -> None:
