@@ -37,6 +37,10 @@ RELIABILITIES = ("reliable", "best_effort")
 STATE_DIR_AUTO = "auto"
 POINT_MODES = ("pair", "sample")      # point_mode: pair points by stamp, or on ~/take_sample only
 SAMPLE_SOURCES = ("topic", "tf")      # sample_destination_source
+REBUILD_WORKERS = ("auto", "thread", "process")  # rebuild_worker (pipeline.build_process)
+#: ``rebuild_worker: auto`` builds in the child process from this many enabled fiducials on (a
+#: kriging build at J = 1,000 takes about 1 s on a 2-core machine, the child's start ~0.5 s once).
+PROCESS_MIN_FIDUCIALS = 1000
 
 #: Parameters that were removed, with what replaces them (the reason given when one is set).
 REMOVED = {"apply_corrections": "it was replaced by 'decision' (auto -> rho for the paper's "
@@ -100,6 +104,11 @@ SPECS: dict[str, Spec] = {
     "debounce_period": Spec(0.2, "Recompute once no measurement arrived for this long [s] "
                             "(at the latest 10x this after the first pending one).",
                             low=0.0, high=60.0),
+    "rebuild_worker": Spec("auto", "Where the node builds a model: 'process' (a child Python "
+                           "process with its own GIL, so a long rebuild does not slow the "
+                           "services), 'thread' (the recompute thread of the node's process) or "
+                           f"'auto' (the process from {PROCESS_MIN_FIDUCIALS} enabled fiducials "
+                           "on, the thread below).", choices=REBUILD_WORKERS),
     "point_buffer": Spec(100, "Unmatched ~/working_point or ~/destination_point messages kept "
                          "per stream for pairing. Read-only.", read_only=True, low=1,
                          high=100_000),
@@ -197,6 +206,7 @@ class Settings:
     max_stamp_age: float
     max_targets: int
     debounce_period: float
+    rebuild_worker: str
     point_buffer: int
     input_reliability: str
     input_batch: int

@@ -37,7 +37,8 @@ from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
 from ..pipeline.journal import Journal
 from ..pipeline.snapshot import start_warnings, write_atomic
-from ..pipeline.state import EMPTY_STATE, ModelState, build_state, warm_start
+from ..pipeline.build_process import BuildCancelled, ProcessBuilder
+from ..pipeline.state import EMPTY_STATE, ModelState, warm_start
 from ..pipeline.worker import LatestWriter, RecomputeWorker
 from ..runtime import freeze_startup_objects
 from . import conversions as conv
@@ -65,7 +66,9 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
     """The registration node (see the module docstring and msg_docs/README.md).
 
     :param build: builds the :class:`ModelState` from the fiducials, settings and a stamp
-        (default :func:`~rbc_registration.pipeline.state.build_state`).
+        (default: a :class:`~rbc_registration.pipeline.build_process.ProcessBuilder`, which runs
+        :func:`~rbc_registration.pipeline.state.build_state` in the recompute thread or a child
+        process as ``rebuild_worker`` says).
     :param write_snapshot: writes the calibration snapshot ``(path, text)`` (default
         :func:`~rbc_registration.pipeline.snapshot.write_atomic`).
     :param clock: monotonic seconds for the recompute debounce (default
@@ -80,7 +83,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
     """
 
     def __init__(self, node_name: str = "registration_node", *,
-                 build: Callable[..., ModelState] = build_state,
+                 build: Optional[Callable[..., ModelState]] = None,
                  write_snapshot: Callable[[str, str], None] = write_atomic,
                  clock: Callable[[], float] = time.monotonic, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
@@ -90,8 +93,8 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             self.destroy_node()
             raise
 
-    def _start(self, build: Callable[..., ModelState], write_snapshot: Callable[[str, str], None],
-               clock: Callable[[], float]) -> None:
+    def _start(self, build: Optional[Callable[..., ModelState]],
+               write_snapshot: Callable[[str, str], None], clock: Callable[[], float]) -> None:
         self._settings = params.declare(self)
         unknown = params.unknown_overrides(getattr(self, "_parameter_overrides", {}))
         if unknown:
@@ -102,7 +105,9 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if samples.source_error(s.sample_destination_source):
             raise ValueError(samples.source_error(s.sample_destination_source))
         self._samples = samples.SampleTaker(self)
-        self._build = build
+        # The default builder's child process (rebuild_worker) is killed in destroy_node.
+        self._builder = ProcessBuilder() if build is None else None
+        self._build = build if build is not None else self._builder
         self._write_snapshot = write_snapshot
         self._pub_lock = threading.Lock()
         # ~/reset against the snapshot thread: a snapshot is written only while its generation
@@ -237,13 +242,18 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self._publish_model(state, disabled_points, generation)
 
     def _on_worker_error(self, exc: BaseException) -> None:
+        if isinstance(exc, BuildCancelled):   # destroy_node killed the build process
+            return
         self.get_logger().error(f"recompute failed: {type(exc).__name__}: {exc}")
 
     def destroy_node(self) -> None:
         """Stop the recompute, planning and snapshot threads, close the journal, release
         ``state_dir``, then destroy the node (also of a node whose start failed half way)."""
-        for name, stop in (("_worker", "stop"), ("_planner", "cancel"), ("_snapshots", "stop"),
-                           ("_ingest", "close"), ("_state_lock", "release")):
+        # The build process first: a rebuild running in it ends at once, so the recompute
+        # thread's join does not wait for it (one in the thread still finishes first).
+        for name, stop in (("_builder", "close"), ("_worker", "stop"), ("_planner", "cancel"),
+                           ("_snapshots", "stop"), ("_ingest", "close"),
+                           ("_state_lock", "release")):
             part = self.__dict__.pop(name, None)
             if part is not None:
                 getattr(part, stop)()

@@ -245,6 +245,46 @@ class TestLiveRegistration(NodeTestBase):
         assert node.status().n_pending == 0
 
 
+class TestRebuildWorker(NodeTestBase):
+    """rebuild_worker: a build in the child process serves what the thread's would; the node's
+    shutdown kills the child and does not wait for its build."""
+
+    def test_a_model_built_in_the_process_answers_as_the_core_and_a_switch_to_thread_too(self):
+        node = self.make_node(rebuild_worker="process", interpolation="kriging")
+        self.stream(node)
+        state = self.recompute(node)
+        builder = node._builder
+        assert builder.n_started == 1 and builder.child_pid is not None
+        expected = expected_state(self.cell, debounce_period=0.05, interpolation="kriging",
+                                  rebuild_worker="process")
+        np.testing.assert_array_equal(state.model.corrections, expected.model.corrections)
+        self.assert_answers_match_core(node, expected, self.cell["targets"])
+        assert node.set_parameters([Parameter("rebuild_worker", value="thread")])[0].successful
+        self.recompute(node)
+        assert builder.n_started == 1
+        self.assert_answers_match_core(node, expected, self.cell["targets"])
+
+    def test_a_killed_build_process_is_replaced_and_the_node_keeps_serving(self):
+        node = self.make_node(rebuild_worker="process")
+        self.stream(node)
+        self.recompute(node)
+        os.kill(node._builder.child_pid, 9)
+        assert self.correct(node, self.cell["targets"][0]).success   # the served model
+        self.recompute(node)                                         # a new child builds it
+        assert node._builder.n_started == 2
+        self.assert_answers_match_core(node, expected_state(self.cell, debounce_period=0.05),
+                                       self.cell["targets"])
+
+    def test_destroying_the_node_kills_the_build_process(self):
+        node = self.make_node(rebuild_worker="process")
+        self.stream(node)
+        self.recompute(node)
+        child = node._builder._child.process
+        self.nodes.remove(node)
+        self.ros.remove(node)
+        assert child.poll() is not None
+
+
 class TestBadInput(NodeTestBase):
 
     def test_each_rejection_is_counted_and_the_node_keeps_answering(self):

@@ -1,0 +1,47 @@
+"""The build process of :mod:`.build_process`: ``python -m rbc_registration.pipeline.build_child``.
+
+Reads pickled requests ``(fiducials, settings, stamp_ns, previous)`` from stdin, one after
+another, and answers each on stdout with ``("ok", ModelState)`` or ``("error", "<type>: <msg>")``
+(the build's unexpected exception; a bad fiducial set is a ModelState with its error, as in the
+thread). Exits at the end of stdin (the node closed the pipe or exited). Ignores SIGINT: a Ctrl-C
+in the node's terminal reaches the whole process group, and the node, not its child, decides
+when the child ends. Anything else written to stdout (a library's print) goes to stderr, so the
+reply stream stays clean. No rclpy.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import sys
+
+
+def main() -> int:
+    """Serve build requests until stdin ends; 0 then."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    replies = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    requests = sys.stdin.buffer
+    # numpy reads OPENBLAS_NUM_THREADS here, from the environment the node passed on (the node
+    # set its default, rbc_registration.runtime, before it loaded numpy itself).
+    from .state import build_state
+
+    while True:
+        try:
+            fiducials, settings, stamp_ns, previous = pickle.load(requests)
+        except EOFError:
+            return 0
+        try:
+            reply = ("ok", build_state(fiducials, settings, stamp_ns, previous))
+        except Exception as exc:  # noqa: BLE001 - boundary: the node logs it, the child goes on
+            reply = ("error", f"{type(exc).__name__}: {exc}")
+        try:
+            pickle.dump(reply, replies, protocol=pickle.HIGHEST_PROTOCOL)
+            replies.flush()
+        except BrokenPipeError:  # the node is gone
+            return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
