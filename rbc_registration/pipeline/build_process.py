@@ -24,7 +24,8 @@ what the thread would (bit for bit, checked by the tests).
 
 A child that dies during a build (killed, out of memory) is replaced and the build retried once
 in a new child; a second death raises :class:`BuildProcessDied` (the node logs it and keeps
-serving the previous model). :meth:`ProcessBuilder.close` kills the child at once, so a node shuts
+serving the previous model). A child that cannot be started at all (no interpreter at
+``sys.executable``, out of memory) is reported once and the build runs in the thread. :meth:`ProcessBuilder.close` kills the child at once, so a node shuts
 down without waiting for a long rebuild; the build in progress raises :class:`BuildCancelled`.
 """
 
@@ -120,10 +121,17 @@ class ProcessBuilder:
     one at a time.
 
     :param build: the in-thread build (default :func:`~.state.build_state`).
+    :param warn: called with one line when a child cannot be started (e.g. no ``sys.executable``,
+        out of memory): that build then runs in the calling thread, and so do later ones until a
+        start succeeds (tried again at each build).
     """
 
-    def __init__(self, build: Callable[..., ModelState] = build_state) -> None:
+    def __init__(self, build: Callable[..., ModelState] = build_state,
+                 warn: Callable[[str], None] = lambda line: None) -> None:
         self._build = build
+        self._warn = warn
+        #: Why the last child could not be started, "" after a start or none tried.
+        self.start_error = ""
         self._lock = threading.Lock()     # one build in the child at a time
         self._state_lock = threading.Lock()  # guards _child and _closed
         self._child: Optional[_Child] = None
@@ -144,7 +152,14 @@ class ProcessBuilder:
         with self._lock:
             reason = ""
             for _ in range(2):
-                child = self._running_child()
+                try:
+                    child = self._running_child()
+                except OSError as exc:
+                    error = f"cannot start the build process ({exc}): building in the thread"
+                    if error != self.start_error:
+                        self._warn(error)
+                    self.start_error = error
+                    return self._build(fiducials, settings, stamp_ns, previous)
                 try:
                     reply = child.call(request)
                 except (EOFError, OSError, ValueError, pickle.UnpicklingError):
@@ -169,6 +184,7 @@ class ProcessBuilder:
             if self._child is None or self._child.process.poll() is not None:
                 self._child = _Child()
                 self.n_started += 1
+                self.start_error = ""
             return self._child
 
     @property

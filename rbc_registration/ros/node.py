@@ -106,7 +106,8 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             raise ValueError(samples.source_error(s.sample_destination_source))
         self._samples = samples.SampleTaker(self)
         # The default builder's child process (rebuild_worker) is killed in destroy_node.
-        self._builder = ProcessBuilder() if build is None else None
+        self._builder = (ProcessBuilder(warn=self.get_logger().warning) if build is None
+                         else None)
         self._build = build if build is not None else self._builder
         self._write_snapshot = write_snapshot
         self._pub_lock = threading.Lock()

@@ -149,3 +149,20 @@ def test_close_ends_a_build_in_the_child_at_once_and_later_ones_are_refused(buil
     with pytest.raises(BuildCancelled, match="the builder is closed"):
         builder(fs, s, 2)
     assert builder(fs, settings(rebuild_worker="thread"), 3).model is not None  # thread: works
+
+
+def test_a_child_that_cannot_start_is_reported_once_and_the_build_runs_in_the_thread(monkeypatch):
+    lines = []
+    builder = ProcessBuilder(warn=lines.append)
+    monkeypatch.setattr(sys, "executable", "/nonexistent/python3")
+    cell = make_cell()
+    fs, s = fiducials(cell), settings()
+    for stamp in (1, 2):
+        same_state(builder(fs, s, stamp), build_state(fs, s, stamp), cell["targets"])
+    assert len(lines) == 1 and builder.n_started == 0
+    assert lines[0].startswith("cannot start the build process (") and "/nonexistent/python3" in \
+        lines[0] and lines[0].endswith("): building in the thread")
+    monkeypatch.undo()
+    assert builder(fs, s, 3).model is not None and builder.n_started == 1
+    assert builder.start_error == ""
+    builder.close()
