@@ -1,4 +1,6 @@
-"""Evaluation of a model on targets with known truth (paper eq. 3) and leave-one-out."""
+"""Evaluation of a model on targets with known truth (paper eq. 3) and leave-one-out; the
+fiducials that stand out as blunders, after a build (:func:`blunders`) and before one
+(:func:`gross_misfits`)."""
 
 from __future__ import annotations
 
@@ -134,3 +136,64 @@ def describe_blunders(found: Sequence[Blunder], unit: str) -> str:
             f"{worst.error / worst.median:.0f} x the median of the fiducials "
             f"({worst.median:.4g} {unit}, {worst.method}): a typo or a wrong hole? check "
             f"its points first{more}")
+
+
+#: Partners each fiducial's distances are compared with in :func:`distance_misfits` (all others
+#: below this many + 1 fiducials; a fixed random choice above, so the check stays O(J)).
+MISFIT_PARTNERS = 64
+
+
+def distance_misfits(working: ArrayLike, destination: ArrayLike) -> NDArray[np.float64]:
+    """Per fiducial, how far its distances to the other fiducials differ between the two frames:
+    the lower median over its partners j of | ||x_k - x_j|| - ||y_k - y_j|| | (unit of the
+    points). The rigid-body condition (paper eq. 1) says 0 up to noise and bias; a fiducial with a
+    mistyped coordinate or measured at the wrong hole differs from nearly all its partners, and
+    the lower median keeps a sound fiducial's value small even when up to half its partners are
+    such blunders. Needs no registration, so a blunder cannot hide by pulling the fit.
+
+    Partners: every other fiducial up to :data:`MISFIT_PARTNERS`; above, that many chosen at
+    random (a fixed seed: the same points give the same values).
+    """
+    x, y = as_point_pairs(working, destination)
+    j = len(x)
+    if j < 2:
+        return np.zeros(j)
+    if j - 1 <= MISFIT_PARTNERS:
+        partners = np.array([[i for i in range(j) if i != k] for k in range(j)], dtype=np.intp)
+    else:
+        rng = np.random.default_rng(j)
+        partners = rng.integers(0, j - 1, size=(j, MISFIT_PARTNERS))
+        partners += partners >= np.arange(j)[:, None]          # never the fiducial itself
+    mismatch = np.abs(np.linalg.norm(x[:, None, :] - x[partners], axis=2)
+                      - np.linalg.norm(y[:, None, :] - y[partners], axis=2))
+    mismatch.sort(axis=1)
+    return mismatch[:, (mismatch.shape[1] - 1) // 2]
+
+
+def gross_misfits(working: ArrayLike, destination: ArrayLike, floor: float,
+                  factor: float = BLUNDER_FACTOR) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """``(flagged, misfit)``: the indices of the fiducials whose :func:`distance_misfits`
+    value is more than ``factor`` times the median of all fiducials' and more than ``floor``
+    (unit of the points), largest first, and every fiducial's value; none flagged with fewer
+    than :data:`BLUNDER_MIN_FIDUCIALS` fiducials or a median of 0. The relative test keeps a
+    cell in another unit than ``floor`` from being flagged whole: where every fiducial differs
+    alike, none stands out."""
+    misfit = distance_misfits(working, destination)
+    median = float(np.median(misfit)) if len(misfit) else 0.0
+    if len(misfit) < BLUNDER_MIN_FIDUCIALS or not median > 0:
+        return np.zeros(0, dtype=np.intp), misfit
+    flagged = np.flatnonzero((misfit > factor * median) & (misfit > floor))
+    return flagged[np.argsort(-misfit[flagged], kind="stable")], misfit
+
+
+def describe_misfits(ids: Sequence[str], misfit: NDArray[np.float64], flagged: Sequence[int],
+                     unit: str) -> str:
+    """``fiducial 'h7' (its distances to the other fiducials differ between the frames by
+    1e+07 m in median; the fiducials' median 0.0005 m)``: the flagged fiducials of
+    :func:`gross_misfits` (at most 6 named) with their :func:`distance_misfits` values."""
+    flagged = list(flagged)
+    named = ", ".join(f"{ids[k]!r} ({misfit[k]:.4g} {unit})" for k in flagged[:6])
+    more = f" and {len(flagged) - 6} more" if len(flagged) > 6 else ""
+    return (f"fiducial{'s' if len(flagged) > 1 else ''} {named}{more}: distances to the other "
+            f"fiducials differ between the frames by that much (median; the fiducials' median "
+            f"{float(np.median(misfit)):.4g} {unit})")

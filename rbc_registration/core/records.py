@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import Any, Union
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from .constants import REJECT_REASONS
 from .noise import RepeatStats
@@ -83,6 +83,19 @@ class FiducialSet:
     repeat_stats: RepeatStats
     disabled_ids: tuple[str, ...]
     n_measurements: int
+    #: Enabled fiducials a build left out (:func:`~rbc_registration.pipeline.state.build_state`:
+    #: the model could not be built with them), not in ``ids``; () from the accumulator.
+    left_out_ids: tuple[str, ...] = ()
+
+    def without(self, index: ArrayLike) -> "FiducialSet":
+        """This set without the fiducials at positions ``index`` (they move to
+        ``left_out_ids``; ``n_measurements`` still counts their measurements)."""
+        keep = np.ones(len(self.ids), dtype=bool)
+        keep[np.asarray(index, dtype=np.intp)] = False
+        return FiducialSet(tuple(f for f, k in zip(self.ids, keep) if k), self.working[keep],
+                           self.destination[keep], self.repeat_stats.subset(keep),
+                           self.disabled_ids, self.n_measurements,
+                           self.left_out_ids + tuple(f for f, k in zip(self.ids, keep) if not k))
 
 
 class FiducialRepeats:

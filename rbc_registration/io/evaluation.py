@@ -66,6 +66,7 @@ def evaluate_contents(contents: BagContents, settings: Settings,
     report["destination_frame"] = settings.destination_frame
     report["bag"] = {"path": str(contents.path), "messages": dict(contents.counts),
                      "rejected": ev.rejected, "disabled": list(ev.fiducials.disabled_ids),
+                     "left_out": list(ev.fiducials.left_out_ids),
                      "targets_source": targets.source if targets else None,
                      "other_topics": dict(contents.other_topics)}
     out = Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,

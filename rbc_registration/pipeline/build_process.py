@@ -25,8 +25,9 @@ what the thread would (bit for bit, checked by the tests).
 A child that dies during a build (killed, out of memory) is replaced and the build retried once
 in a new child; a second death raises :class:`BuildProcessDied` (the node logs it and keeps
 serving the previous model). A child that cannot be started at all (no interpreter at
-``sys.executable``, out of memory) is reported once and the build runs in the thread. :meth:`ProcessBuilder.close` kills the child at once, so a node shuts
-down without waiting for a long rebuild; the build in progress raises :class:`BuildCancelled`.
+``sys.executable``, out of memory) is reported once and the build runs in the thread.
+:meth:`ProcessBuilder.close` kills the child at once, so a node shuts down without waiting for
+a long rebuild; the build in progress raises :class:`BuildCancelled`.
 """
 
 from __future__ import annotations

@@ -227,5 +227,5 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
     notes = ("targets have no truth: TRE not computed",) \
         if targets is not None and targets.destination is None else ()
     notes += acc.stamp_warnings
-    return OfflineModel(state.model, acc.fiducials, settings, targets, acc.rejected, notes,
+    return OfflineModel(state.model, state.fiducials, settings, targets, acc.rejected, notes,
                         state.warning)

@@ -93,7 +93,10 @@ SPECS: dict[str, Spec] = {
                          "destination point is nearest within this distance [m], else a new "
                          "auto-NNNN fiducial.", low=0.0, high=10.0, low_exclusive=True),
     "outlier_distance": Spec(0.01, "A measurement farther than this [m] from the mean of its "
-                             "fiducial's earlier repeats (either frame) is rejected; 0 = off.",
+                             "fiducial's earlier repeats (either frame) is rejected; and when a "
+                             "model cannot be built, fiducials whose distances to the others "
+                             "differ between the frames by more than this and 20x the "
+                             "fiducials' median are left out of it, named in ~/status; 0 = off.",
                              low=0.0, high=100.0),
     "max_stamp_age": Spec(0.0, "A measurement whose header stamp is more than this [s] older "
                           "than the node clock, or more than this ahead of it, is rejected as "

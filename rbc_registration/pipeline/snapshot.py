@@ -205,13 +205,14 @@ def snapshot_json(state: ModelState, working_frame: str, destination_frame: str,
         "format": SNAPSHOT_FORMAT, "working_frame": working_frame,
         "destination_frame": destination_frame, "dimension": int(dimension), "units": "m",
         "stamp_ns": state.stamp_ns, "model_valid": model is not None, "error": state.error,
-        "n_measurements": state.n_measurements,
+        "n_measurements": state.n_measurements, "warning": state.warning,
     }
     if settings is not None:
         data["settings"] = {k: getattr(settings, k) for k in settings.__dataclass_fields__}
     if fiducials is not None:
         data["fiducial_ids"] = list(fiducials.ids)
         data["disabled_ids"] = list(fiducials.disabled_ids)
+        data["left_out_ids"] = list(fiducials.left_out_ids)   # enabled, but the build left out
         data["working"] = fiducials.working.tolist()
         data["destination"] = fiducials.destination.tolist()
     if model is not None:

@@ -7,8 +7,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
+import numpy as np
+
 from ..core.accumulator import FiducialSet
-from ..core.evaluation import blunders, describe_blunders
+from ..core.evaluation import blunders, describe_blunders, describe_misfits, gross_misfits
 from ..core.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
 from .settings import Settings
@@ -70,15 +72,38 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
         return ModelState(None, fiducials, settings,
                           f"{n} enabled fiducials, need min_fiducials={settings.min_fiducials}",
                           stamp_ns)
+    left_out = ""
     try:
-        model = build_model(fiducials.working, fiducials.destination, model_config(settings),
-                            ids=list(fiducials.ids),
-                            repeat_statistics=fiducials.repeat_stats,
-                            kriging_warm_start=previous)
+        model = _build(fiducials, settings, previous)
     except ValueError as exc:
-        return ModelState(None, fiducials, settings, f"model not built: {exc}", stamp_ns)
+        flagged, misfit = (gross_misfits(fiducials.working, fiducials.destination,
+                                         settings.outlier_distance)
+                           if settings.outlier_distance > 0 else (np.zeros(0, np.intp), None))
+        if not len(flagged):
+            return ModelState(None, fiducials, settings, f"model not built: {exc}", stamp_ns)
+        named = describe_misfits(fiducials.ids, misfit, flagged, "m")
+        kept = fiducials.without(flagged)
+        if len(kept.ids) < settings.min_fiducials:
+            return ModelState(None, fiducials, settings,
+                              f"model not built: {exc}; likely through {named}", stamp_ns)
+        try:
+            model = _build(kept, settings, previous)
+        except ValueError:
+            return ModelState(None, fiducials, settings,
+                              f"model not built: {exc}; likely through {named}", stamp_ns)
+        fiducials = kept
+        left_out = (f"{named}: left out of the model, which could not be built with "
+                    f"{'them' if len(flagged) > 1 else 'it'}: a typo or a wrong hole? check "
+                    f"the points, or disable the fiducial")
     # The status and the snapshot report every sigma_L (computed on first access, O(J^2)): here,
     # in the recompute thread, rather than on the executor at the first status.
     _ = model.restoration.sigma_l
-    return ModelState(model, fiducials, settings, "", stamp_ns,
-                      describe_blunders(blunders(model), "m"))
+    warning = "; ".join(filter(None, (left_out, describe_blunders(blunders(model), "m"))))
+    return ModelState(model, fiducials, settings, "", stamp_ns, warning)
+
+
+def _build(fiducials: FiducialSet, settings: Settings,
+           previous: Optional[KrigingHyperparameters]) -> RbcModel:
+    return build_model(fiducials.working, fiducials.destination, model_config(settings),
+                       ids=list(fiducials.ids), repeat_statistics=fiducials.repeat_stats,
+                       kriging_warm_start=previous)

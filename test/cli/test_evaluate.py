@@ -336,6 +336,23 @@ def test_a_blunder_is_warned_once_and_reported(tmp_path, capsys):
     assert len(report["warnings"]) == 1 and "fiducial F100: held-out error" in report["warnings"][0]
 
 
+def test_a_wild_new_fiducial_is_left_out_warned_and_reported(tmp_path, capsys):
+    """One fiducial's working point typed 1e7 m off: the model could not be built (the node's
+    rule, pipeline.state.build_state): the model of the others, one warning, report.json's
+    bag.left_out."""
+    fid = DEFAULT_TOPICS.fiducial_pairs
+    msgs = [m._replace(xyz=(1e7,) + m.xyz[1:])
+            if m.topic == fid and m.fiducial_id == "F100" else m
+            for m in cell_messages(make_cell("RA", seed=0))]
+    write_bag(tmp_path / "bag", msgs, progress=False)
+    report = run_json(["evaluate", str(tmp_path / "bag"), "--quiet"], tmp_path / "e.json")
+    err = capsys.readouterr().err
+    assert err.count("left out of the model") == 1 and "fiducial 'F100' (1e+07 m)" in err, err
+    assert report["bag"]["left_out"] == ["F100"] and report["n_fiducials"] == len(
+        make_cell("RA", seed=0).fiducial_ids) - 1
+    assert any("fiducial 'F100' (1e+07 m)" in w for w in report["warnings"])
+
+
 def test_targets_without_truth_get_a_table_of_corrections(tmp_path):
     cell = make_cell("RA", seed=0)
     nan = (float("nan"),) * 3

@@ -24,7 +24,7 @@ from rbc_registration.ros.node import RegistrationNode  # noqa: E402
 from rbc_registration.ros.services import rebuild_requested_ns  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
 from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets,  # noqa: E402
-                                             SetFiducialEnabled)
+                                             GetFiducials, SetFiducialEnabled)
 
 from rbc_registration.pipeline.state import build_state  # noqa: E402
 from ros_helpers import (RosTestBase, answer_key, expected_state, make_cell,  # noqa: E402
@@ -325,6 +325,30 @@ class TestBadInput(NodeTestBase):
         after = self.recompute(node).model
         np.testing.assert_array_equal(after.corrections, before.corrections)
         assert answer_key(self.correct(node, target)) == answer_key(good)
+
+    def test_a_wild_new_fiducial_is_left_out_named_and_the_node_keeps_its_model(self):
+        """A review: one new pair with a mistyped coordinate (1e7 m) made every later
+        ~/correct_target answer 'no model yet: model not built: fiducials are coplanar'."""
+        node = self.make_node()
+        self.stream(node)
+        before = self.recompute(node)
+        pub = self.publisher(node, FiducialPair, "fiducial_pairs")
+        wild = {"ids": np.array(["typo"]), "fid": np.array([0]),
+                "working": np.array([[1e7, 0.2, 0.3]]), "destination": np.array([[0.4, 0.5, 0.6]])}
+        pub.publish(pair_msg(wild, 0, stamp_s=500.0))
+        wait_for(lambda: node.status().n_measurements == len(self.cell["fid"]) + 1,
+                 what="the wild pair accepted")
+        state = self.recompute(node)
+        assert state.model is not None and state.fiducials.left_out_ids == ("typo",)
+        status = node.status()
+        assert status.model_valid and status.n_fiducials == before.model.ids.__len__()
+        assert status.message.startswith("fiducial 'typo' (1e+07 m): distances to the other")
+        listed = self.srv(node, GetFiducials, "get_fiducials")
+        typo = [f for f in listed.fiducials if f.fiducial_id == "typo"]
+        assert listed.success and len(typo) == 1 and typo[0].enabled
+        assert np.isnan([typo[0].correction_norm, typo[0].cv_error]).all()
+        self.assert_answers_match_core(node, expected_state(self.cell, debounce_period=0.05),
+                                       self.cell["targets"])
 
     def test_bad_targets_get_a_reason_and_nothing_breaks(self):
         node = self.make_node()
