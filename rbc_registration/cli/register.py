@@ -66,7 +66,7 @@ def model_config(args: argparse.Namespace, dimension: int,
 
 def run(args: argparse.Namespace) -> int:
     """Print the report, write JSON."""
-    from ..core.evaluation import leave_one_out
+    from ..core.evaluation import describe_misfits, gross_misfits, leave_one_out
     from ..core.model import build_model
     from ..io.csv_io import read_fiducials, read_targets
     from ..io.report import format_report, model_report, write_json
@@ -77,8 +77,16 @@ def run(args: argparse.Namespace) -> int:
     for note in fid.notes:
         warn("register", note)
     cfg = model_config(args, fid.dimension, fid.ids)
-    model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
-                        working_repeats=fid.working_repeats)
+    try:
+        model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
+                            working_repeats=fid.working_repeats)
+    except ValueError as exc:   # name a fiducial the model cannot be built with, if one stands out
+        flagged, misfit = gross_misfits(fid.working, fid.destination, floor=0.0)
+        if not len(flagged):
+            raise
+        raise ValueError(f"{exc}; likely through "
+                         f"{describe_misfits(fid.ids, misfit, flagged, args.unit)}: a typo or "
+                         f"a wrong hole? fix or remove its rows") from None
     tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,
                        fiducials=fid.working) if args.targets else None
     loo = leave_one_out(model) if args.loo else None

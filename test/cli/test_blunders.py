@@ -45,3 +45,18 @@ def test_register_names_the_blunder_in_one_warning_line(tmp_path, capsys):
     write_fiducials(f, cell.fiducial_ids, [p[None] for p in x], [p[None] for p in y])
     assert cli.main(["register", str(f)]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_register_names_the_fiducial_a_model_cannot_be_built_with(tmp_path, capsys):
+    """One coordinate typed 1e10 mm off: the core's reason (degenerate geometry or "frames in
+    different units") now names the fiducial that stands out (core/evaluation.gross_misfits)."""
+    cell, x, y = single("A", 0)
+    x[50, 0] += 1e10
+    f = tmp_path / "f.csv"
+    write_fiducials(f, cell.fiducial_ids, [p[None] for p in x], [p[None] for p in y])
+    assert cli.main(["register", str(f)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rbc-registration register: error: "), err
+    assert f"; likely through fiducial '{cell.fiducial_ids[50]}' (1e+10 mm): distances to the " \
+           f"other fiducials differ between the frames by that much" in err[0]
+    assert err[0].endswith(": a typo or a wrong hole? fix or remove its rows")
