@@ -80,13 +80,15 @@ def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
                         destination: object = None, truth: object = None) -> list[str]:
     """One line when every target is out of the hull at a scale ~100x or more off the
     fiducials' (:func:`rbc_registration.core.scale.unit_mismatch`); another when the targets'
-    truth is that far off the fiducials' destination points.
+    truth is that far off the fiducials' destination points, or else when some targets' truth
+    stands out (:func:`rbc_registration.core.evaluation.describe_truth_blunders`).
 
     :param fiducials: the model's fiducials, working frame; :param targets: the report's
         targets, working frame (``None``: none); :param report: the report (its hull flags);
     :param destination: the fiducials in the destination frame; :param truth: the targets'
         true points there (``None``: no truth).
     """
+    from ..core.evaluation import describe_truth_blunders
     from ..core.scale import unit_mismatch
 
     if targets is None or not report.get("targets"):
@@ -101,6 +103,12 @@ def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
                              "target truth")
         if text:
             lines.append("the targets' truth: " + text)
+        elif "tre_u" in report["targets"][0]:   # one unit: a target's truth that stands out
+            text = describe_truth_blunders([t["id"] for t in report["targets"]],
+                                           [t["tre_u"] for t in report["targets"]],
+                                           report.get("unit", ""))
+            if text:
+                lines.append(text)
     return lines
 
 

@@ -138,6 +138,32 @@ def describe_blunders(found: Sequence[Blunder], unit: str) -> str:
             f"its points first{more}")
 
 
+
+def describe_truth_blunders(ids: Sequence[str], tre_u: ArrayLike, unit: str,
+                            factor: float = BLUNDER_FACTOR) -> str:
+    """One line naming the targets whose uncorrected TRE (eq. 3) is more than ``factor`` times
+    the median of the targets' (at least :data:`BLUNDER_MIN_FIDUCIALS` targets with finite
+    TRE), worst first; "" when none. A target's truth mistyped, or two targets' truth swapped,
+    shows as a TRE the registration cannot explain: sound targets stay within a few times the
+    median, also outside the fiducials' hull."""
+    err = np.asarray(tre_u, dtype=float)
+    finite = np.isfinite(err)
+    if finite.sum() < BLUNDER_MIN_FIDUCIALS:
+        return ""
+    median = float(np.median(err[finite]))
+    if not median > 0:
+        return ""
+    flagged = np.flatnonzero(finite & (err > factor * median))
+    if not len(flagged):
+        return ""
+    flagged = flagged[np.argsort(-err[flagged], kind="stable")]
+    named = ", ".join(f"{ids[k]!r} ({err[k]:.4g} {unit})" for k in flagged[:6])
+    more = f" and {len(flagged) - 6} more" if len(flagged) > 6 else ""
+    return (f"target{'s' if len(flagged) > 1 else ''} {named}{more}: uncorrected TRE over "
+            f"{factor:g} x the median of the targets ({median:.4g} {unit}): its truth mistyped, "
+            f"or swapped with another target's? check the truth of "
+            f"{'these targets' if len(flagged) > 1 else 'this target'}")
+
 #: Partners each fiducial's distances are compared with in :func:`distance_misfits` (all others
 #: below this many + 1 fiducials; a fixed random choice above, so the check stays O(J)).
 MISFIT_PARTNERS = 64

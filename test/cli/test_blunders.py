@@ -7,7 +7,7 @@ from rbc_registration import cli
 from rbc_registration.core.evaluation import BLUNDER_FACTOR, blunders
 from rbc_registration.core.model import ModelConfig, build_model
 from rbc_registration.core.synthetic import make_cell
-from rbc_registration.io.csv_io import write_fiducials
+from rbc_registration.io.csv_io import write_fiducials, write_targets
 
 
 def single(name="A", seed=0):
@@ -60,3 +60,26 @@ def test_register_names_the_fiducial_a_model_cannot_be_built_with(tmp_path, caps
     assert f"; likely through fiducial '{cell.fiducial_ids[50]}' (1e+10 mm): distances to the " \
            f"other fiducials differ between the frames by that much" in err[0]
     assert err[0].endswith(": a typo or a wrong hole? fix or remove its rows")
+
+
+def test_a_swapped_target_truth_is_named_in_one_warning_line(tmp_path, capsys):
+    """A review: two targets' truth rows swapped gave a TRE of the distance between them with
+    no word; sound targets of every cell stay below the line (also the default RA/B checks)."""
+    for name in ("A", "B", "RA"):
+        cell, x, y = single(name, 0)
+        f, t = tmp_path / "f.csv", tmp_path / "t.csv"
+        write_fiducials(f, cell.fiducial_ids, [p[None] for p in x], [p[None] for p in y])
+        working = np.array([m[0] for m in cell.target_measurements])
+        truth = cell.target_truth.copy()
+        write_targets(t, cell.target_ids, working, truth)
+        assert cli.main(["register", str(f), "--targets", str(t)]) == 0
+        assert capsys.readouterr().err == "", name
+    truth[[2, 5]] = truth[[5, 2]]
+    write_targets(t, cell.target_ids, working, truth)
+    assert cli.main(["register", str(f), "--targets", str(t)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    ids = sorted([cell.target_ids[2], cell.target_ids[5]])
+    assert len(err) == 1 and err[0].startswith("rbc-registration register: warning: targets "), err
+    assert all(f"{i!r} (" in err[0] for i in ids)
+    assert "uncorrected TRE over 20 x the median of the targets" in err[0]
+    assert err[0].endswith("or swapped with another target's? check the truth of these targets")
