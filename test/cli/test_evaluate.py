@@ -353,6 +353,22 @@ def test_a_wild_new_fiducial_is_left_out_warned_and_reported(tmp_path, capsys):
     assert any("fiducial 'F100' (1e+07 m)" in w for w in report["warnings"])
 
 
+def test_a_swapped_target_truth_is_warned_and_reported(tmp_path, capsys):
+    msgs = list(cell_messages(make_cell("RA", seed=0)))
+    tgt = [k for k, m in enumerate(msgs) if m.topic == DEFAULT_TOPICS.targets]
+    a, b = tgt[2], tgt[5]
+    assert msgs[a].fiducial_id != msgs[b].fiducial_id
+    msgs[a], msgs[b] = (msgs[a]._replace(destination=msgs[b].destination),
+                        msgs[b]._replace(destination=msgs[a].destination))
+    write_bag(tmp_path / "bag", msgs, progress=False)
+    report = run_json(["evaluate", str(tmp_path / "bag"), "--quiet"], tmp_path / "e.json")
+    err = capsys.readouterr().err
+    assert err.count("uncorrected TRE over 20 x the median of the targets") == 1, err
+    line = [w for w in report["warnings"] if "uncorrected TRE over" in w]
+    assert len(line) == 1 and f"{msgs[a].fiducial_id!r} (" in line[0] \
+        and f"{msgs[b].fiducial_id!r} (" in line[0]
+
+
 def test_targets_without_truth_get_a_table_of_corrections(tmp_path):
     cell = make_cell("RA", seed=0)
     nan = (float("nan"),) * 3
