@@ -95,8 +95,9 @@ def run(args: argparse.Namespace) -> int:
     from ..io.bag.reader import read_bag
     from ..io.bag.records import PointMessage
     from ..io.csv_io import read_targets
-    from ..io.evaluation import (REPORT_FILES, ambiguous_points_line, evaluate_contents,
-                                 print_summary, with_warnings, write_report_dir)
+    from ..io.evaluation import (REPORT_FILES, ambiguous_points_line, duplicates_line,
+                                 evaluate_contents, print_summary, with_warnings,
+                                 write_report_dir)
     from ..io.report import write_json
     from ..pipeline.offline import infer_dimension, settings_for
     from ..pipeline.targets import Targets
@@ -145,9 +146,13 @@ def run(args: argparse.Namespace) -> int:
               "pairs the working and destination points by their stamps (point_mode 'pair')") \
         if settings.point_mode == "sample" and any(isinstance(m, PointMessage)
                                                    for m in contents.inputs) else ""
-    ev = with_warnings(ev, [w for w in (sample, ambiguous, large) if w] + unit_mismatch_lines(
-        ev.model.working, ev.targets.working if ev.targets is not None else None, ev.report,
-        ev.model.destination, ev.targets.destination if ev.targets is not None else None))
+    duplicates = duplicates_line(ev, f"bag {contents.path}")
+    ev = with_warnings(ev, [w for w in (duplicates, sample, ambiguous, large) if w]
+                       + unit_mismatch_lines(
+                           ev.model.working,
+                           ev.targets.working if ev.targets is not None else None, ev.report,
+                           ev.model.destination,
+                           ev.targets.destination if ev.targets is not None else None))
     for line in ev.warnings:
         warn("evaluate", line)
     if args.json:

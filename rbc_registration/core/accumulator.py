@@ -10,6 +10,22 @@ A measurement goes through two steps so that a caller can make it durable in bet
 Replaying the committed records (:meth:`FiducialAccumulator.restore`) rebuilds the identical state,
 because a record carries the id it was given: replay never re-runs the proximity assignment.
 The value rules a measurement must pass (id, stamp, coordinates) are :mod:`.measurement_checks`.
+
+**Duplicates.** A measurement with a stamp (not 0) whose fiducial already holds an accepted
+measurement with that stamp is one of two things. With the same points (bit for bit) it is the
+same message again (a topic bridged or republished twice, a bag recorded twice): rejected as
+``duplicate``, so it does not count as a repeat (it would lower sigma, to 0 for a fiducial
+measured once, and make rho infinite). With other points and the same given id it is a
+``conflict``: one stamp is one measurement, and which one is right is not known (the later is
+rejected; ``evaluate`` refuses the recording). Points without an id join a fiducial by
+proximity first and are compared within it, never as a conflict (two points of a fiducial at one
+stamp without ids are kept). The live node keeps the last :data:`DUPLICATE_WINDOW` stamps per
+fiducial (bounded memory in a long run): an exact copy arriving after that many newer stamps of
+the same fiducial is not detected there. ``evaluate`` holds the whole recording anyway and keeps
+every stamp (``duplicate_window=None``): a bag recorded twice is caught whatever the repeats.
+Unstamped measurements (stamp 0) cannot be told apart and are never duplicates. Journal replay
+(:meth:`FiducialAccumulator.restore`) fills the window too, so a
+copy arriving after a restart is still a duplicate.
 """
 
 from __future__ import annotations
@@ -28,8 +44,11 @@ from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSe
                       Record, RejectedMeasurement, quote)
 from .repeats import repeat_outlier
 
-__all__ = ["AUTO_ID_PREFIX", "MAX_ID_LENGTH", "REJECT_REASONS", "EnabledChange",
+__all__ = ["AUTO_ID_PREFIX", "DUPLICATE_WINDOW", "MAX_ID_LENGTH", "REJECT_REASONS", "EnabledChange",
            "FiducialAccumulator", "FiducialSet", "Measurement", "Record", "RejectedMeasurement"]
+
+#: Stamps kept per fiducial for the duplicate rule (module docstring).
+DUPLICATE_WINDOW = 16
 
 #: Ids given to measurements without one are ``auto-0000``, ``auto-0001``, ...
 AUTO_ID_PREFIX = "auto-"
@@ -65,7 +84,8 @@ class FiducialAccumulator:
 
     def __init__(self, dimension: int, working_frame: str, destination_frame: str,
                  merge_radius: float, outlier_distance: float = 0.0,
-                 max_stamp_age: float = 0.0) -> None:
+                 max_stamp_age: float = 0.0,
+                 duplicate_window: Optional[int] = DUPLICATE_WINDOW) -> None:
         if dimension not in (2, 3) or isinstance(dimension, bool):
             raise ValueError(f"dimension must be 2 or 3, got {dimension!r}")
         for name, frame in (("working_frame", working_frame),
@@ -78,6 +98,13 @@ class FiducialAccumulator:
         self.merge_radius = _positive("merge_radius", merge_radius)
         self.outlier_distance = _positive("outlier_distance", outlier_distance, allow_zero=True)
         self.max_stamp_age = _positive("max_stamp_age", max_stamp_age, allow_zero=True)
+        if duplicate_window is not None and (isinstance(duplicate_window, bool)
+                                             or int(duplicate_window) != duplicate_window
+                                             or duplicate_window < 1):
+            raise ValueError(f"duplicate_window must be a positive integer or None, "
+                             f"got {duplicate_window!r}")
+        #: stamps kept per fiducial for the duplicate rule (``None``: all of them)
+        self.duplicate_window = duplicate_window
         self.clear()
 
     # -- state --------------------------------------------------------------------------------
@@ -88,6 +115,10 @@ class FiducialAccumulator:
         self._order: list[str] = []
         self._index: dict[str, int] = {}
         self._next_auto = 0
+        # per fiducial: stamp -> hashes of the points accepted at that stamp, for the last
+        # duplicate_window stamps (insertion order: oldest first). A hash, not the points: an
+        # entry is ~100 bytes, and two other points sharing a 64-bit hash is not a risk
+        self._recent: dict[str, dict[float, tuple[int, ...]]] = {}
         self.n_measurements = 0
         self.rejected = {reason: 0 for reason in REJECT_REASONS}
 
@@ -125,7 +156,8 @@ class FiducialAccumulator:
         :param stamp_s: measurement time [s].
         :param now_s: the clock now [s], for the :attr:`max_stamp_age` check (``None``: no check).
         :return: the record to :meth:`commit`.
-        :raises RejectedMeasurement: with reason frame, nonfinite, outlier, malformed or stale
+        :raises RejectedMeasurement: with reason frame, nonfinite, outlier, malformed, stale,
+            duplicate or conflict
             (the rejection is counted in :attr:`rejected`).
         """
         try:
@@ -157,6 +189,8 @@ class FiducialAccumulator:
         if fid is None:
             fid = self._new_auto_id()
         fiducial = self._fiducials.get(fid)
+        if fiducial is not None and stamp != 0:
+            self._check_duplicate(fid, stamp, w, d, auto)
         if fiducial is not None and self.outlier_distance > 0:
             for name, point, mean in (("working", w, fiducial.mean_w()),
                                       ("destination", d, fiducial.mean_d())):
@@ -164,6 +198,24 @@ class FiducialAccumulator:
                 if far:
                     raise RejectedMeasurement("outlier", far)
         return Measurement(fid, w, d, stamp, auto)
+
+    def _check_duplicate(self, fid: str, stamp: float, working: tuple[float, ...],
+                         destination: tuple[float, ...], auto: bool) -> None:
+        """The duplicate rule (module docstring)."""
+        same = self._recent.get(fid, {}).get(stamp)
+        if not same:
+            return
+        at = f"fiducial {quote(fid)} at stamp {stamp:.9f} s"
+        if hash((working, destination)) in same:
+            raise RejectedMeasurement(
+                "duplicate", f"{at}: the same points as an accepted measurement with that stamp "
+                             "(a topic bridged or republished twice, a bag recorded twice?): one "
+                             "measurement, not a repeat")
+        if not auto:
+            raise RejectedMeasurement(
+                "conflict", f"{at}: other points than an accepted measurement with that stamp "
+                            f"(working {working}, destination {destination}): one stamp is one "
+                            "measurement, which one is right is not known")
 
     def check_record(self, record: Record) -> None:
         """The live value checks of :meth:`prepare` on a record read back from a journal: the
@@ -217,6 +269,12 @@ class FiducialAccumulator:
         fiducial.add(tuple(record.working), tuple(record.destination))
         self._dest_means[self._index[fid]] = fiducial.mean_d()
         self.n_measurements += 1
+        if record.stamp_s != 0:
+            recent = self._recent.setdefault(fid, {})
+            points = hash((tuple(record.working), tuple(record.destination)))
+            recent[record.stamp_s] = recent.get(record.stamp_s, ()) + (points,)
+            if self.duplicate_window is not None and len(recent) > self.duplicate_window:
+                del recent[next(iter(recent))]
 
     def add(self, fiducial_id: Optional[str], working_xyz: ArrayLike, destination_xyz: ArrayLike,
             working_frame: str = "", destination_frame: str = "",

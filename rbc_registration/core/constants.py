@@ -28,7 +28,8 @@ RECOMMENDATIONS = ("apply", "uncertain", "do_not_apply", "unknown")
 #: Where sigma came from: given by the user, estimated from repeats, or unknown.
 SIGMA_SOURCES = ("given", "repeats", "unknown")
 #: Reasons a measurement is rejected (the counters of ``FiducialAccumulator.rejected``).
-REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed", "stale", "ambiguous")
+REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed", "stale", "ambiguous",
+                  "duplicate", "conflict")
 #: The two point streams of the node (``~/working_point``, ``~/destination_point``), paired by
 #: stamp (:mod:`.pairing`).
 WORKING, DESTINATION = "working", "destination"

@@ -85,6 +85,17 @@ def ambiguous_points_line(ev: Evaluation, working_topic: str, destination_topic:
             "lower pair_slop below half the measurement period (-p pair_slop:=...)")
 
 
+def duplicates_line(ev: Evaluation, source: str) -> str:
+    """The warning when measurements were rejected as exact duplicates (the accumulator's
+    duplicate rule, :mod:`rbc_registration.core.accumulator`), or ""."""
+    n = ev.rejected.get("duplicate", 0)
+    if not n:
+        return ""
+    return (f"{source}: {n} exact duplicate measurement(s) dropped (the fiducial, stamp and "
+            "points of an accepted one: a bag recorded twice or a topic republished?); each is "
+            "one measurement, not a repeat")
+
+
 def with_warnings(ev: Evaluation, lines: Sequence[str]) -> Evaluation:
     """``ev`` with ``lines`` added to its warnings and to its report's ``warnings`` (so that
     ``report.json`` and ``report.md`` hold what the command warned about)."""

@@ -17,7 +17,6 @@ import numpy as np
 from ..core.accumulator import FiducialAccumulator, FiducialSet
 from ..core.model import RbcModel
 from ..core.pairing import StampPairer
-from ..core.records import quote
 from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
 from .settings import Settings
@@ -95,8 +94,10 @@ def settings_for(dimension: int, overrides: Mapping[str, Any]) -> Settings:
 def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
     """Feed the inputs, in recorded order, through the node's ingestion."""
     s = settings
+    # every stamp kept for the duplicate rule: the recording is in memory anyway, and a bag
+    # recorded twice brings each copy after all of a fiducial's repeats
     acc = FiducialAccumulator(s.dimension, s.working_frame, s.destination_frame, s.merge_radius,
-                              s.outlier_distance)
+                              s.outlier_distance, duplicate_window=None)
     log = _Log()
     ingest = Ingest(acc, StampPairer(s.pair_slop, s.point_buffer), None, log)
     for m in inputs:
@@ -152,60 +153,6 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
     return Targets(unique, working, truth if np.all(np.isfinite(truth)) else None, "bag")
 
 
-class DuplicateConflict(ValueError):
-    """Two ``FiducialPair`` messages with one fiducial id and one stamp but other points."""
-
-
-def _content(m: PairMessage) -> tuple[str, ...]:
-    """What a message says, bit for bit (``float.hex``: NaN equals NaN, nothing is rounded)."""
-    return (m.working_frame, m.destination_frame,
-            *(float(v).hex() for v in m.working + m.destination))
-
-
-def _stamp_text(m: PairMessage) -> str:
-    if m.stamp_ns is None:
-        return f"{m.stamp_s:.9f} s"
-    return f"{m.stamp_ns // 1_000_000_000}.{m.stamp_ns % 1_000_000_000:09d} s"
-
-
-def drop_duplicate_pairs(inputs: Sequence[Input]) -> tuple[list[Input], int]:
-    """The inputs without the exact duplicates of ``FiducialPair`` messages (a bag recorded
-    twice, a topic republished): a message with the id, stamp, frames and points (bit for bit)
-    of an earlier one is one measurement, not a repeat. Unstamped messages (stamp 0) cannot be
-    told apart and are kept.
-
-    :return: the inputs kept (in order; points pass unchanged) and the number dropped.
-    :raises DuplicateConflict: for two messages with one non-empty id and one stamp but other
-        points or frames (one stamp is one measurement: which one is right is not known).
-    """
-    seen: dict[tuple[str, object], dict[tuple[str, ...], PairMessage]] = {}
-    kept: list[Input] = []
-    for m in inputs:
-        stamp = m.stamp_ns if isinstance(m, PairMessage) and m.stamp_ns is not None \
-            else m.stamp_s
-        if not isinstance(m, PairMessage) or stamp == 0:
-            kept.append(m)
-            continue
-        same = seen.setdefault((m.fiducial_id, stamp), {})
-        content = _content(m)
-        if content in same:
-            continue
-        if same and m.fiducial_id:
-            first = next(iter(same.values()))
-            raise DuplicateConflict(
-                f"fiducial {quote(m.fiducial_id)} at stamp {_stamp_text(m)}: two messages with "
-                f"other points (working {first.working} vs {m.working}, destination "
-                f"{first.destination} vs {m.destination}"
-                + (f", frames {first.working_frame!r}/{first.destination_frame!r} vs "
-                   f"{m.working_frame!r}/{m.destination_frame!r}"
-                   if content[:2] != _content(first)[:2] else "")
-                + "): one stamp is one measurement, which one is right is not known; "
-                "remove the wrong message")
-        same[content] = m
-        kept.append(m)
-    return kept, len(inputs) - len(kept)
-
-
 def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
                     recorded: Sequence[PairMessage] = (), targets: Optional[Targets] = None,
                     source: str = "input") -> OfflineModel:
@@ -217,6 +164,13 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
         geometry), naming ``source`` and the first rejection.
     """
     acc = accumulate(inputs, settings)
+    if acc.rejected.get("conflict"):
+        # the node rejects the later message live; a recording is refused (the accumulator's
+        # duplicate rule): which of the two is right is not known
+        first = next(line for line in acc.log_lines if "(conflict, " in line)
+        raise EvaluationError(f"{source}: {first.split(': ', 1)[1]}; remove the wrong message"
+                              + (f" ({acc.rejected['conflict']} such message(s))"
+                                 if acc.rejected["conflict"] > 1 else ""))
     state = build_state(acc.fiducials, settings, 0)
     if state.model is None:
         raise EvaluationError(f"{source}: no model: {state.error}"

@@ -141,7 +141,8 @@ def test_rejections_are_counted_like_the_node(tmp_path):
     write_bag(bag, msgs, progress=False)
     report = run_json(["evaluate", str(bag), "--quiet"], tmp_path / "e.json")
     assert report["bag"]["rejected"] == {"frame": 1, "nonfinite": 1, "outlier": 0,
-                                         "malformed": 0, "stale": 0, "ambiguous": 0}
+                                         "malformed": 0, "stale": 0, "ambiguous": 0,
+                                         "duplicate": 0, "conflict": 0}
     assert report["n_fiducials"] == len(cell.fiducial_ids) - 2
 
 
@@ -270,8 +271,8 @@ def test_exact_duplicate_pairs_are_dropped_with_one_warning(tmp_path, capsys):
     twice = run_json(["evaluate", str(tmp_path / "twice"), "--quiet"], tmp_path / "2.json")
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
-    assert (f"warning: bag {tmp_path / 'twice'}: {DEFAULT_TOPICS.fiducial_pairs}: "
-            f"{len(pairs)} exact duplicate message(s) dropped") in err[0]
+    assert (f"warning: bag {tmp_path / 'twice'}: {len(pairs)} exact duplicate measurement(s) "
+            f"dropped") in err[0]
     assert twice["n_measurements"] == once["n_measurements"] == len(pairs)
     assert_same_numbers(exact_part(once), exact_part(twice))
     assert twice["bag"]["messages"][DEFAULT_TOPICS.fiducial_pairs] == 2 * len(pairs)
@@ -285,23 +286,26 @@ def test_one_id_and_stamp_with_other_points_is_refused(tmp_path, capsys):
     assert cli.main(["evaluate", str(tmp_path / "bag"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
-    sec, nsec = divmod(first.stamp_ns, 1_000_000_000)
-    assert (f"{DEFAULT_TOPICS.fiducial_pairs}: fiducial {first.fiducial_id!r} at stamp "
-            f"{sec}.{nsec:09d} s: two messages with other points") in err[0]
+    assert f"{tmp_path / 'bag'}: fiducial {first.fiducial_id!r} at stamp " in err[0]
+    assert " s: other points than an accepted measurement with that stamp (working " in err[0]
+    assert err[0].endswith("which one is right is not known; remove the wrong message")
     assert "Traceback" not in err[0]
 
 
 def test_unstamped_pairs_are_never_duplicates():
-    """Stamp 0 (not stamped) tells no measurement apart: such messages are all kept."""
+    """Stamp 0 (not stamped) tells no measurement apart: such messages are all kept (the
+    accumulator's duplicate rule, which evaluate and the node share)."""
     from rbc_registration.pipeline.inputs import PairMessage
-    from rbc_registration.pipeline.offline import drop_duplicate_pairs
+    from rbc_registration.pipeline.offline import accumulate
+    from rbc_registration.pipeline.settings import Settings
 
+    settings = Settings.from_mapping({"outlier_distance": 0.0})
     m = PairMessage(0, 0.0, "F", (1.0, 2.0, 0.0), "tracker", (1.0, 2.0, 0.0), "world", 0)
-    kept, n = drop_duplicate_pairs([m, m, m._replace(working=(1.1, 2.0, 0.0))])
-    assert n == 0 and len(kept) == 3
+    acc = accumulate([m, m, m._replace(working=(1.1, 2.0, 0.0))], settings)
+    assert acc.fiducials.n_measurements == 3 and acc.rejected["duplicate"] == 0
     stamped = m._replace(stamp_s=1.0, stamp_ns=1_000_000_000)
-    kept, n = drop_duplicate_pairs([stamped, stamped, stamped._replace(fiducial_id="G")])
-    assert n == 1 and [k.fiducial_id for k in kept] == ["F", "G"]
+    acc = accumulate([stamped, stamped, stamped._replace(fiducial_id="G")], settings)
+    assert acc.rejected["duplicate"] == 1 and acc.fiducials.ids == ("F", "G")
 
 
 def test_warnings_are_in_report_json_and_report_md(tmp_path, capsys):

@@ -292,3 +292,82 @@ def test_running_statistics_match_the_repeats_and_stay_small():
     np.testing.assert_allclose(fs.working, [r.mean(axis=0) for r in reps.values()], atol=1e-12)
     assert estimate_sigma(list(reps.values())) == pytest.approx(
         float(np.sqrt(np.nanmean(fs.repeat_stats.variances))), rel=1e-9)
+
+
+def test_an_exact_copy_is_a_duplicate_not_a_repeat():
+    acc = make()
+    acc.add("a", [0, 0, 0], [1, 1, 1], stamp_s=5.0)
+    with pytest.raises(RejectedMeasurement) as caught:
+        acc.add("a", [0, 0, 0], [1, 1, 1], stamp_s=5.0)
+    assert caught.value.reason == "duplicate"
+    assert "fiducial 'a' at stamp 5.000000000 s: the same points" in str(caught.value)
+    assert acc.rejected["duplicate"] == 1 and acc.n_measurements == 1
+    # the same points at another stamp are a repeat; other ids never collide
+    acc.add("a", [0, 0, 0], [1, 1, 1], stamp_s=6.0)
+    acc.add("b", [0.1, 0, 0], [1.1, 1, 1], stamp_s=5.0)
+    assert acc.n_measurements == 3 and acc.fiducial_set().repeat_stats.counts.tolist() == [2, 1]
+
+
+def test_one_stamp_with_other_points_is_a_conflict():
+    acc = make()
+    acc.add("a", [0, 0, 0], [1, 1, 1], stamp_s=5.0)
+    with pytest.raises(RejectedMeasurement) as caught:
+        acc.add("a", [0.0001, 0, 0], [1, 1, 1], stamp_s=5.0)
+    assert caught.value.reason == "conflict" and acc.n_measurements == 1
+    assert "one stamp is one measurement" in str(caught.value)
+
+
+def test_points_without_an_id_at_one_stamp_are_two_measurements_unless_identical():
+    acc = make(outlier_distance=0.01)
+    fid = acc.add(None, [0, 0, 0], [1, 1, 1], stamp_s=5.0)
+    assert acc.add(None, [0.001, 0, 0], [1.001, 1, 1], stamp_s=5.0) == fid
+    with pytest.raises(RejectedMeasurement, match="the same points") as caught:
+        acc.add(None, [0.001, 0, 0], [1.001, 1, 1], stamp_s=5.0)
+    assert caught.value.reason == "duplicate" and acc.n_measurements == 2
+
+
+def test_unstamped_measurements_are_never_duplicates():
+    acc = make()
+    for _ in range(3):
+        acc.add("a", [0, 0, 0], [1, 1, 1])
+    assert acc.n_measurements == 3 and acc.rejected["duplicate"] == 0
+
+
+def test_the_duplicate_window_is_bounded():
+    from rbc_registration.core.accumulator import DUPLICATE_WINDOW
+
+    acc = make()
+    for k in range(DUPLICATE_WINDOW + 1):
+        acc.add("a", [0, 0, 0], [1, 1, 1], stamp_s=float(k))
+    assert all(len(v) <= DUPLICATE_WINDOW for v in acc._recent.values())
+    # stamp 0.0 fell out of the window: not detected (documented); the newest still is
+    acc.add("a", [0, 0, 0], [1, 1, 1], stamp_s=0.0)
+    with pytest.raises(RejectedMeasurement, match="the same points"):
+        acc.add("a", [0, 0, 0], [1, 1, 1], stamp_s=float(DUPLICATE_WINDOW))
+
+
+def test_a_copy_after_a_restore_is_still_a_duplicate():
+    acc = make()
+    rec = acc.prepare("a", [0, 0, 0], [1, 1, 1], stamp_s=5.0)
+    acc.commit(rec)
+    restarted = make()
+    restarted.restore([rec])
+    with pytest.raises(RejectedMeasurement) as caught:
+        restarted.add("a", [0, 0, 0], [1, 1, 1], stamp_s=5.0)
+    assert caught.value.reason == "duplicate"
+
+
+def test_evaluate_keeps_every_stamp():
+    """A bag recorded twice brings each copy after all of its fiducial's repeats: offline, the
+    window is unbounded (``duplicate_window=None``)."""
+    acc = FiducialAccumulator(3, "tracker", "world", 0.005, 0.002, duplicate_window=None)
+    n = 40
+    for _ in range(2):
+        for k in range(n):
+            try:
+                acc.add("a", [0, 0, 1e-5 * k], [1, 1, 1], stamp_s=float(k + 1))
+            except RejectedMeasurement as e:
+                assert e.reason == "duplicate"
+    assert acc.n_measurements == n and acc.rejected["duplicate"] == n
+    with pytest.raises(ValueError, match="duplicate_window must be a positive integer"):
+        FiducialAccumulator(3, "tracker", "world", 0.005, duplicate_window=0)

@@ -245,6 +245,26 @@ class TestNodeBadInput(RosTestBase):
             assert self.node.set_parameters([Parameter("max_stamp_age", value=0.0)])[0].successful
         self.assert_unharmed(2)
 
+    def test_a_pair_published_twice_is_one_measurement(self):
+        """A topic bridged twice delivers every pair twice: the copy is not a repeat (it would
+        halve sigma's degrees of freedom and make rho look better than it is)."""
+        for k in (0, 1):
+            self.publisher(FiducialPair, "fiducial_pairs").publish(
+                pair_msg(self.cell, k, stamp_s=100.0 + k))
+        self.rejected("duplicate", 2)
+        line = self.logged("duplicate")
+        assert "at stamp 101.000000000 s: the same points as an accepted measurement" in line
+        self.assert_unharmed(2)
+
+    def test_one_stamp_with_other_points_is_a_conflict(self):
+        msg = pair_msg(self.cell, 2, stamp_s=102.0)
+        msg.working_point.x += 1e-3
+        self.publisher(FiducialPair, "fiducial_pairs").publish(msg)
+        self.rejected("conflict")
+        assert "other points than an accepted measurement with that stamp" in \
+            self.logged("conflict")
+        self.assert_unharmed(1)
+
     def test_1mb_fiducial_id(self):
         self.pair(fiducial_id="H" * MB)
         self.rejected("malformed")

@@ -18,7 +18,6 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError
 
 from ...core.constants import DESTINATION, WORKING
-from ...pipeline.offline import DuplicateConflict, drop_duplicate_pairs
 from ..progress import Progress
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
@@ -168,15 +167,8 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
         raise BagError(f"bag {path}: has {points[0]} but not {missing}"
                        f"{' (no messages)' if missing in types else ''}: points cannot be "
                        "paired")
-    try:
-        ins, n_dup = drop_duplicate_pairs(ins)
-    except DuplicateConflict as exc:
-        raise BagError(f"bag {path}: {topics.fiducial_pairs}: {exc}") from None
     notes = tuple(f"bag {path}: {t}: no messages (ignored)" for t in empty)
-    warnings = (f"bag {path}: {topics.fiducial_pairs}: {n_dup} exact duplicate message(s) "
-                "dropped (the id, stamp and points of an earlier message: a bag recorded twice "
-                "or a topic republished?); each is one measurement, not a repeat",) \
-        if n_dup else ()
+    warnings: tuple[str, ...] = ()
     other = {t: ty for t, ty in types.items() if t not in expected}
     return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other,
                        count_mismatches(path, conns, counts), warnings, notes)
