@@ -87,10 +87,12 @@ def in_node(count: int) -> None:
 
     ids, w, d = measurements(count)
     msgs = []
+    start_s = int(time.time())
     for n in range(count):
         m = FiducialPair()
         m.header.frame_id, m.destination_frame_id, m.fiducial_id = "tracker", "world", ids[n]
-        m.header.stamp.sec = int(time.time())
+        # one stamp per measurement (one stamp with other points of one id is a conflict)
+        m.header.stamp.sec, m.header.stamp.nanosec = start_s + n // 1000, (n % 1000) * 1_000_000
         m.working_point.x, m.working_point.y, m.working_point.z = w[n]
         m.destination_point.x, m.destination_point.y, m.destination_point.z = d[n]
         msgs.append(m)

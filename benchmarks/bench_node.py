@@ -261,9 +261,11 @@ def bench_ratios(args, executor, node: Target, floor: Target, same: Target) -> N
     same.requests = node.requests
     floor.requests = [Trigger.Request()]
     big = make_cell(seed=1, repeats=args.pairs // 48 + 1)
-    msgs = [pair_msg(big, k, with_id=False, stamp_s=10.0 + k * 1e-4) for k in range(args.pairs)]
     rows = []
     for run in range(args.runs):
+        # new stamps every run: the same message again is a duplicate, rejected (not ingestion)
+        msgs = [pair_msg(big, k, with_id=False, stamp_s=10.0 + run * 100.0 + k * 1e-4)
+                for k in range(args.pairs)]
         order = [(node, floor, same), (floor, same, node), (same, node, floor)][run % 3]
         lat = {t.label: t.round_trip(args.calls) for t in order}
         rate = {t.label: t.ingest(msgs) for t in order}

@@ -33,9 +33,11 @@ for k in range(len(cell["fid"])):
 node._worker.wait(node._worker.request_now(), 30)
 reqs = [CorrectTarget.Request(target=target_msg(t)) for t in cell["targets"]]
 big = make_cell(seed=1, repeats=50)
-msgs = [pair_msg(big, k, with_id=False, stamp_s=10.0 + k * 1e-4) for k in range(2400)]
 rt, ing = [], []
-for _ in range(5):
+for run in range(5):
+    # new stamps every run: the same message again is a duplicate, rejected (not ingestion)
+    msgs = [pair_msg(big, k, with_id=False, stamp_s=10.0 + run * 100.0 + k * 1e-4)
+            for k in range(2400)]
     t = time.perf_counter()
     for k in range(2000):
         node._on_correct_target(reqs[k % len(reqs)], CorrectTarget.Response())
