@@ -215,7 +215,8 @@ class FiducialAccumulator:
             raise RejectedMeasurement(
                 "conflict", f"{at}: other points than an accepted measurement with that stamp "
                             f"(working {working}, destination {destination}): one stamp is one "
-                            "measurement, which one is right is not known")
+                            "measurement, which one is right is not known (stamp each "
+                            "measurement with its own acquisition time, or leave the stamp 0)")
 
     def check_record(self, record: Record) -> None:
         """The live value checks of :meth:`prepare` on a record read back from a journal: the

@@ -288,7 +288,8 @@ def test_one_id_and_stamp_with_other_points_is_refused(tmp_path, capsys):
     assert len(err) == 1, err
     assert f"{tmp_path / 'bag'}: fiducial {first.fiducial_id!r} at stamp " in err[0]
     assert " s: other points than an accepted measurement with that stamp (working " in err[0]
-    assert err[0].endswith("which one is right is not known; remove the wrong message")
+    assert err[0].endswith("which one is right is not known (stamp each measurement with its own "
+                           "acquisition time, or leave the stamp 0); remove the wrong message")
     assert "Traceback" not in err[0]
 
 
