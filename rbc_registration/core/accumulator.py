@@ -115,10 +115,10 @@ class FiducialAccumulator:
         self._order: list[str] = []
         self._index: dict[str, int] = {}
         self._next_auto = 0
-        # per fiducial: stamp -> hashes of the points accepted at that stamp, for the last
-        # duplicate_window stamps (insertion order: oldest first). A hash, not the points: an
-        # entry is ~100 bytes, and two other points sharing a 64-bit hash is not a risk
-        self._recent: dict[str, dict[float, tuple[int, ...]]] = {}
+        # per fiducial: stamp -> the points (working + destination, one flat tuple) accepted at
+        # that stamp, for the last duplicate_window stamps (insertion order: oldest first). The
+        # points themselves, not a hash: Python's float hashes collide (hash(-1.0) == hash(-2.0))
+        self._recent: dict[str, dict[float, tuple[tuple[float, ...], ...]]] = {}
         self.n_measurements = 0
         self.rejected = {reason: 0 for reason in REJECT_REASONS}
 
@@ -206,7 +206,7 @@ class FiducialAccumulator:
         if not same:
             return
         at = f"fiducial {quote(fid)} at stamp {stamp:.9f} s"
-        if hash((working, destination)) in same:
+        if working + destination in same:
             raise RejectedMeasurement(
                 "duplicate", f"{at}: the same points as an accepted measurement with that stamp "
                              "(a topic bridged or republished twice, a bag recorded twice?): one "
@@ -272,7 +272,7 @@ class FiducialAccumulator:
         self.n_measurements += 1
         if record.stamp_s != 0:
             recent = self._recent.setdefault(fid, {})
-            points = hash((tuple(record.working), tuple(record.destination)))
+            points = tuple(record.working) + tuple(record.destination)
             recent[record.stamp_s] = recent.get(record.stamp_s, ()) + (points,)
             if self.duplicate_window is not None and len(recent) > self.duplicate_window:
                 del recent[next(iter(recent))]

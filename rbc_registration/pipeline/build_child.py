@@ -36,13 +36,18 @@ def main() -> int:
             reply = ("ok", build_state(fiducials, settings, stamp_ns, previous))
         except Exception as exc:  # noqa: BLE001 - boundary: the node logs it, the child goes on
             reply = ("error", f"{type(exc).__name__}: {exc}")
+        try:        # serialised whole first: a reply pickle cannot write is never half sent
+            data = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception as exc:  # noqa: BLE001 - the node builds this one in its thread
+            data = pickle.dumps(("unsendable", f"{type(exc).__name__}: {exc}"),
+                                protocol=pickle.HIGHEST_PROTOCOL)
         try:
-            pickle.dump(reply, replies, protocol=pickle.HIGHEST_PROTOCOL)
+            replies.write(data)
             replies.flush()
         except BrokenPipeError:  # the node is gone
             return 0
         # nothing of this build is kept while the child waits (~30 MB at J = 5,000)
-        del reply, fiducials, settings, previous
+        del reply, data, fiducials, settings, previous
 
 
 if __name__ == "__main__":

@@ -83,8 +83,10 @@ class _Child:
 
     def __init__(self) -> None:
         self.process = subprocess.Popen(
-            [sys.executable, "-m", CHILD_MODULE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            env=_child_environment(), close_fds=True)
+            # -P: the working directory is not on sys.path (a checkout there would shadow
+            # the package the node runs)
+            [sys.executable, "-P", "-m", CHILD_MODULE], stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE, env=_child_environment(), close_fds=True)
         self._stdin: IO[bytes] = self.process.stdin  # type: ignore[assignment]
         self._stdout: IO[bytes] = self.process.stdout  # type: ignore[assignment]
 
@@ -174,6 +176,10 @@ class ProcessBuilder:
                     continue
                 if reply[0] == "ok":
                     return reply[1]
+                if reply[0] == "unsendable":    # built, but its result cannot be pickled
+                    self._warn(f"the build process could not send its result back "
+                               f"({reply[1]}): this build runs in the thread")
+                    return self._build(fiducials, settings, stamp_ns, previous)
                 raise RuntimeError(f"build process: {reply[1]}")
             raise BuildProcessDied(f"the build process died during the build twice in a row "
                                    f"(last {reason}); the previous model is kept")

@@ -151,11 +151,17 @@ class Ingest:
         with self._lock:
             return self._measurement_locked(args)[0] is not None
 
-    def point(self, stream: str, xyz: Any, frame_id: str, stamp_s: float) -> list[PointPair]:
+    def point(self, stream: str, xyz: Any, frame_id: str, stamp_s: float,
+              recorded: Optional[list[PointPair]] = None) -> list[PointPair]:
         """One ``~/working_point`` / ``~/destination_point``: the pairs it completed that were
         accepted (empty: none; truthy when the model must be rebuilt). Unpairable points are
         rejected as malformed, ambiguous ones (:mod:`~rbc_registration.core.pairing`) as
-        ambiguous."""
+        ambiguous.
+
+        :param recorded: when given, extended by the pairs that are recorded now: the accepted
+            ones and those rejected as a ``duplicate`` of a recorded measurement (so that
+            ``~/take_sample`` does not record their points again).
+        """
         with self._lock:
             try:
                 result = self._pairer.add(stream, xyz, frame_id, stamp_s)
@@ -169,9 +175,17 @@ class Ingest:
             if result.repeated and stream not in self.stamp_warnings:
                 self.stamp_warnings[stream] = repeated_stamps(stream, stamp_s)
                 self._log.warning(self.stamp_warnings[stream])
-            return [pair for pair in result.pairs if self._measurement_locked(PairArgs(
-                None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
-                pair.destination.frame_id, pair.stamp_s))[0] is not None]
+            accepted = []
+            for pair in result.pairs:
+                record, why = self._measurement_locked(PairArgs(
+                    None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
+                    pair.destination.frame_id, pair.stamp_s))
+                if record is not None:
+                    accepted.append(pair)
+                if recorded is not None and (record is not None
+                                             or why.startswith("rejected (duplicate)")):
+                    recorded.append(pair)
+            return accepted
 
     def discard_point(self, stream: str, xyz: Any, stamp_s: float) -> bool:
         """Drop a buffered, unpaired point recorded otherwise (``~/take_sample`` in point_mode

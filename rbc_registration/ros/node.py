@@ -207,9 +207,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self._samples.update(stream, msg)  # the latest point, for ~/take_sample
         if self._settings.point_mode != "pair":
             return
-        pairs = self._ingest.point(stream, *conv.point_stamped_to_tuple(msg))
+        recorded: list = []    # accepted, or a duplicate of a recorded measurement
+        pairs = self._ingest.point(stream, *conv.point_stamped_to_tuple(msg), recorded=recorded)
+        if recorded:
+            self._samples.mark_paired(recorded)
         if pairs:
-            self._samples.mark_paired(pairs)
             self._worker.notify()
 
     def _on_working_point(self, msg: PointStamped) -> None:

@@ -371,3 +371,12 @@ def test_evaluate_keeps_every_stamp():
     assert acc.n_measurements == n and acc.rejected["duplicate"] == n
     with pytest.raises(ValueError, match="duplicate_window must be a positive integer"):
         FiducialAccumulator(3, "tracker", "world", 0.005, duplicate_window=0)
+
+
+def test_points_whose_float_hashes_collide_are_still_other_points():
+    """hash(-1.0) == hash(-2.0): the rule compares the points, not their hashes (a review)."""
+    acc = make(outlier_distance=0.0)
+    acc.add("a", [-1.0, 0, 0], [1, 1, 1], stamp_s=5.0)
+    with pytest.raises(RejectedMeasurement) as caught:
+        acc.add("a", [-2.0, 0, 0], [1, 1, 1], stamp_s=5.0)
+    assert caught.value.reason == "conflict"

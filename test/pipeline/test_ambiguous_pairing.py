@@ -76,3 +76,20 @@ def test_ambiguous_points_are_counted_as_ambiguous_and_never_measured():
     assert acc.rejected["ambiguous"] >= len(messages) - 4 and acc.rejected["malformed"] == 0
     assert any("rejected measurement (ambiguous" in line and "lower pair_slop below half the "
                "measurement period" in line for line in log.lines)
+
+
+def test_a_pair_made_again_is_a_duplicate_and_reported_as_recorded():
+    """Both point streams bridged twice, copies in order W D W' D': the second pair is a
+    duplicate, and it is reported as recorded (so ``~/take_sample`` does not record its points
+    again under another id; a review)."""
+    acc = FiducialAccumulator(3, "tracker", "world", 0.005, 0.0)
+    ingest = Ingest(acc, StampPairer(0.02, 100), None, Log())
+    w, d = (0.1, 0.2, 0.3), (1.1, 1.2, 1.3)
+    recorded = []
+    assert not ingest.point("working", w, "tracker", 5.0, recorded=recorded)
+    assert len(ingest.point("destination", d, "world", 5.0, recorded=recorded)) == 1
+    assert len(recorded) == 1
+    assert not ingest.point("working", w, "tracker", 5.0, recorded=recorded)
+    assert ingest.point("destination", d, "world", 5.0, recorded=recorded) == []
+    assert len(recorded) == 2 and recorded[0] == recorded[1]
+    assert acc.rejected["duplicate"] == 1 and acc.n_measurements == 1

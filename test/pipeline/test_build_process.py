@@ -123,6 +123,40 @@ def test_a_child_that_dies_twice_raises_naming_how_it_ended(builder, monkeypatch
     assert builder.n_started == 2
 
 
+def test_a_result_the_child_cannot_send_back_is_built_in_the_thread(monkeypatch):
+    """A model state pickle cannot write: the child dies no more (a review: 'died twice in a
+    row' on every rebuild, two children and two builds each time, the model never updated)."""
+    lines = []
+    builder = ProcessBuilder(warn=lines.append)
+    monkeypatch.setattr(build_process, "CHILD_MODULE", "unsendable_build_child")
+    monkeypatch.setenv("PYTHONPATH", os.path.dirname(os.path.abspath(__file__)))
+    try:
+        cell = make_cell()
+        fs, s = fiducials(cell), settings()
+        for stamp in (1, 2):
+            same_state(builder(fs, s, stamp), build_state(fs, s, stamp), cell["targets"])
+        assert builder.n_started == 1, "the child serves on"
+        assert len(lines) == 2 and all("could not send its result back (" in line
+                                       and "this build runs in the thread" in line
+                                       for line in lines)
+    finally:
+        builder.close()
+
+
+def test_the_child_does_not_import_from_the_working_directory(builder, tmp_path, monkeypatch):
+    """A checkout in the node's working directory would shadow the package (no -P before)."""
+    fake = tmp_path / "rbc_registration" / "pipeline"
+    fake.mkdir(parents=True)
+    (tmp_path / "rbc_registration" / "__init__.py").write_text("")
+    (fake / "__init__.py").write_text("")
+    (fake / "build_child.py").write_text("raise SystemExit(3)\n")
+    monkeypatch.chdir(tmp_path)
+    cell = make_cell()
+    fs, s = fiducials(cell), settings()
+    same_state(builder(fs, s, 1), build_state(fs, s, 1), cell["targets"])
+    assert builder.n_started == 1
+
+
 def test_close_ends_a_build_in_the_child_at_once_and_later_ones_are_refused(builder,
                                                                           monkeypatch):
     monkeypatch.setattr(build_process, "CHILD_MODULE", "hanging_build_child")

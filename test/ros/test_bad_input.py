@@ -252,7 +252,8 @@ class TestNodeBadInput(RosTestBase):
             self.publisher(FiducialPair, "fiducial_pairs").publish(
                 pair_msg(self.cell, k, stamp_s=100.0 + k))
         self.rejected("duplicate", 2)
-        line = self.logged("duplicate")
+        line = self.logged("'H01' at stamp 101.000000000 s")
+        assert line.startswith("rejected measurement (duplicate, ")
         assert "at stamp 101.000000000 s: the same points as an accepted measurement" in line
         self.assert_unharmed(2)
 

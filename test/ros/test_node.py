@@ -67,12 +67,15 @@ class NodeTestBase(RosTestBase):
         wait_for(lambda: pub.get_subscription_count() > 0, what=f"subscriber of {topic}")
         return pub
 
-    def stream(self, node, indices=None, with_ids=True, wait=True):
+    def stream(self, node, indices=None, with_ids=True, wait=True, stamp_offset=0.0):
+        """Publish measurements ``indices`` of the cell, measurement k stamped 100 s + k +
+        ``stamp_offset`` (the same stamps and points again would be duplicates, rejected)."""
         pub = self.publisher(node, FiducialPair, "fiducial_pairs")
         indices = range(self.n) if indices is None else indices
         before = node.status().n_measurements
         for k in indices:
-            pub.publish(pair_msg(self.cell, k, with_id=with_ids, stamp_s=100.0 + k))
+            pub.publish(pair_msg(self.cell, k, with_id=with_ids,
+                                 stamp_s=100.0 + k + stamp_offset))
         if wait:
             wait_for(lambda: node.status().n_measurements == before + len(indices),
                      what="measurements accepted")

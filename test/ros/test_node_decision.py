@@ -114,7 +114,7 @@ class TestDecisionInStatusAndDiagnostics(NodeTestBase):
         self.stream(node)
         self.recompute(node)
         assert node.set_parameters([Parameter("debounce_period", value=60.0)])[0].successful
-        self.stream(node, range(3))   # accepted, but not rebuilt for minutes
+        self.stream(node, range(3), stamp_offset=1000.0)   # accepted, not rebuilt for minutes
         d = self.diagnostics(node, lambda s: "stale model" in s.message)
         assert d.level == DiagnosticStatus.WARN
         assert "3 measurement(s) waiting for" in d.message and "stale_after 0.05 s" in d.message

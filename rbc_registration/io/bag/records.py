@@ -105,11 +105,11 @@ DEFAULT_TOPICS = Topics.for_node()
 
 
 class BagContents(NamedTuple):
-    """What :func:`read_bag` found: the node's inputs in bag (receive-time) order (exact
-    duplicates of ``FiducialPair`` messages dropped), the targets, message counts per topic (as
-    read), the other topics of the bag (name -> type), a line per topic whose metadata count
-    differs from the messages read, warnings (the duplicates dropped) and notes (an input topic
-    without messages)."""
+    """What :func:`read_bag` found: the node's inputs in bag (receive-time) order, every message
+    as recorded (duplicates are the accumulator's to reject, as in the node), the targets,
+    message counts per topic (as read), the other topics of the bag (name -> type), a line per
+    topic whose metadata count differs from the messages read, warnings (none today) and notes
+    (an input topic without messages)."""
 
     path: Path
     inputs: tuple[Union[PairMessage, PointMessage], ...]
