@@ -259,42 +259,6 @@ def test_a_corrupt_database_page_is_one_bag_error(tmp_path):
         read_bag(bag, progress=False)
 
 
-def _with_chunk_crcs(data: bytes) -> bytearray:
-    """An uncompressed mcap with each chunk's CRC-32 written in (as rosbag2's mcap writer does;
-    rosbags' writer leaves 0, "not computed")."""
-    import struct
-    import zlib
-
-    out, i = bytearray(data), 8
-    while i < len(out) and out[i] != 0x0F:          # records up to DataEnd
-        size = struct.unpack_from("<Q", out, i + 1)[0]
-        if out[i] == 0x06:                          # Chunk: times, size, crc, compression, data
-            name = struct.unpack_from("<I", out, i + 37)[0]
-            assert out[i + 41:i + 41 + name] == b"", "uncompressed chunks expected"
-            length = struct.unpack_from("<Q", out, i + 41 + name)[0]
-            start = i + 49 + name
-            struct.pack_into("<I", out, i + 33, zlib.crc32(out[start:start + length]))
-        i += 9 + size
-    return out
-
-
-def test_a_flipped_bit_under_a_chunk_checksum_is_one_bag_error(tmp_path):
-    """mcap chunks carry a CRC-32 of their records: a bit flipped in a coordinate is refused,
-    not read as a wrong coordinate (checked by rosbags; a chunk with CRC 0 has none)."""
-    bag = tmp_path / "crc"
-    write_bag(bag, cell_messages(make_cell("RA", seed=0)), "mcap", progress=False)
-    f = storage_file(bag)
-    data = _with_chunk_crcs(f.read_bytes())
-    f.write_bytes(bytes(data))
-    good = read_bag(bag, progress=False)             # the CRCs themselves are right
-    data[len(data) // 3] ^= 0x10
-    f.write_bytes(bytes(data))
-    with pytest.raises(BagError, match=r"truncated or corrupt after \d+ message\(s\): Chunk "
-                                       r"checksum mismatch"):
-        read_bag(bag, progress=False)
-    assert good.inputs
-
-
 def test_messages_the_metadata_lists_but_the_storage_lost_are_reported(tmp_path, bags, capsys):
     """Rows deleted from the .db3 behind its metadata.yaml: rosbags reads what is left without a
     word; read_bag, read_raw and evaluate (a note, also in report.md) say how many are missing."""
