@@ -71,7 +71,7 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                      "other_topics": dict(contents.other_topics)}
     out = Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
                      contents.count_mismatches + contents.notes + ev.notes)
-    return with_warnings(out, contents.warnings + ((ev.warning,) if ev.warning else ()))
+    return with_warnings(out, (ev.warning,) if ev.warning else ())
 
 
 def ambiguous_points_line(ev: Evaluation, working_topic: str, destination_topic: str) -> str:

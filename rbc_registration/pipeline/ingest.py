@@ -41,6 +41,19 @@ def repeated_stamps(stream: str, stamp_s: float) -> str:
             "stamp each measurement, or publish FiducialPair")
 
 
+#: The :attr:`_Outcome.reason` of a valid measurement the journal could not write.
+JOURNAL_FAILED = "journal"
+
+
+class _Outcome(NamedTuple):
+    """One measurement's fate: the accepted ``record``, or ``None`` with the rejection's
+    ``reason`` (a ``REJECT_REASONS`` code, or :data:`JOURNAL_FAILED`) and ``why`` (a line)."""
+
+    record: Optional[Measurement]
+    reason: str = ""
+    why: str = ""
+
+
 class Counters(NamedTuple):
     """Accumulator counters at one moment (read under the ingestion lock)."""
 
@@ -78,6 +91,8 @@ class Ingest:
         self._last_log: dict[str, float] = {}
         #: The warnings logged for point stamps that repeat (one per stream at most).
         self.stamp_warnings: dict[str, str] = {}
+        #: The message of the first rejection of each reason (since the last reset).
+        self.first_rejections: dict[str, str] = {}
         self.journal_error = ""      # the last journal write error; "" once a write succeeds
         self.n_journal_failures = 0  # records refused because the journal could not be written
         self.n_replay_skipped = 0    # journal lines skipped on replay (corrupt or invalid)
@@ -105,6 +120,7 @@ class Ingest:
             return self._acc.n_measurements
 
     def _rejected(self, exc: RejectedMeasurement) -> None:
+        self.first_rejections.setdefault(exc.reason, exc.message)
         count = self._acc.rejected[exc.reason]
         now = self._log_clock()
         if count <= LOG_EVERY_UP_TO or now - self._last_log.get(exc.reason, 0.0) >= 1.0:
@@ -128,28 +144,30 @@ class Ingest:
         self._acc.commit(record)
         return True
 
-    def _measurement_locked(self, args: PairArgs) -> tuple[Optional[Measurement], str]:
-        """Validate, journal and count one measurement: ``(record, "")`` or ``(None, why)``."""
+    def _measurement_locked(self, args: PairArgs) -> _Outcome:
+        """Validate, journal and count one measurement."""
         now = self._clock() if self._clock is not None and self._acc.max_stamp_age > 0 else None
         try:
             record = self._acc.prepare(*args, now_s=now)
         except RejectedMeasurement as exc:
             self._rejected(exc)
-            return None, f"rejected ({exc.reason}): {exc.message}"
+            return _Outcome(None, exc.reason, f"rejected ({exc.reason}): {exc.message}")
         if not self._accept(record):
-            return None, f"journal write failed, not accepted: {self.journal_error}"
-        return record, ""
+            return _Outcome(None, JOURNAL_FAILED,
+                            f"journal write failed, not accepted: {self.journal_error}")
+        return _Outcome(record)
 
     def take(self, args: PairArgs) -> tuple[Optional[Measurement], str]:
         """One measurement (e.g. ``~/take_sample``): ``(the accepted record, "")`` or
         ``(None, the reason it was not accepted)``."""
         with self._lock:
-            return self._measurement_locked(args)
+            outcome = self._measurement_locked(args)
+            return outcome.record, outcome.why
 
     def measurement(self, args: PairArgs) -> bool:
         """One FiducialPair measurement; True when accepted (journaled and counted)."""
         with self._lock:
-            return self._measurement_locked(args)[0] is not None
+            return self._measurement_locked(args).record is not None
 
     def point(self, stream: str, xyz: Any, frame_id: str, stamp_s: float,
               recorded: Optional[list[PointPair]] = None) -> list[PointPair]:
@@ -177,13 +195,13 @@ class Ingest:
                 self._log.warning(self.stamp_warnings[stream])
             accepted = []
             for pair in result.pairs:
-                record, why = self._measurement_locked(PairArgs(
+                outcome = self._measurement_locked(PairArgs(
                     None, pair.working.xyz, pair.destination.xyz, pair.working.frame_id,
                     pair.destination.frame_id, pair.stamp_s))
-                if record is not None:
+                if outcome.record is not None:
                     accepted.append(pair)
-                if recorded is not None and (record is not None
-                                             or why.startswith("rejected (duplicate)")):
+                if recorded is not None and (outcome.record is not None
+                                             or outcome.reason == "duplicate"):
                     recorded.append(pair)
             return accepted
 
@@ -221,6 +239,7 @@ class Ingest:
                                    f"failed: {exc}")
             self._acc.clear()
             self._pairer.clear()
+            self.first_rejections.clear()
             self.n_journal_failures = 0
             self.journal_error = ""
             if self._journal is None:

@@ -31,13 +31,14 @@ class EvaluationError(ValueError):
 
 
 class Accumulated(NamedTuple):
-    """The fiducials after ingestion, rejections by reason, the log lines of the rejections and
-    the warnings about point stamps that repeat."""
+    """The fiducials after ingestion, rejections by reason, the log lines of the rejections,
+    the warnings about point stamps that repeat and the first rejection's message by reason."""
 
     fiducials: FiducialSet
     rejected: dict[str, int]
     log_lines: tuple[str, ...]
-    stamp_warnings: tuple[str, ...] = ()
+    stamp_warnings: tuple[str, ...]
+    first_rejections: dict[str, str]
 
 
 class OfflineModel(NamedTuple):
@@ -107,7 +108,7 @@ def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
         else:
             ingest.point(m.stream, m.xyz, m.frame_id, m.stamp_s)
     return Accumulated(ingest.fiducial_set(), dict(acc.rejected), tuple(log.lines),
-                       tuple(ingest.stamp_warnings.values()))
+                       tuple(ingest.stamp_warnings.values()), dict(ingest.first_rejections))
 
 
 def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
@@ -167,8 +168,8 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
     if acc.rejected.get("conflict"):
         # the node rejects the later message live; a recording is refused (the accumulator's
         # duplicate rule): which of the two is right is not known
-        first = next(line for line in acc.log_lines if "(conflict, " in line)
-        raise EvaluationError(f"{source}: {first.split(': ', 1)[1]}; remove the wrong message"
+        raise EvaluationError(f"{source}: {acc.first_rejections['conflict']}; remove the "
+                              "wrong message"
                               + (f" ({acc.rejected['conflict']} such message(s))"
                                  if acc.rejected["conflict"] > 1 else ""))
     state = build_state(acc.fiducials, settings, 0)

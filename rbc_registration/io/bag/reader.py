@@ -168,10 +168,9 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                        f"{' (no messages)' if missing in types else ''}: points cannot be "
                        "paired")
     notes = tuple(f"bag {path}: {t}: no messages (ignored)" for t in empty)
-    warnings: tuple[str, ...] = ()
     other = {t: ty for t, ty in types.items() if t not in expected}
     return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other,
-                       count_mismatches(path, conns, counts), warnings, notes)
+                       count_mismatches(path, conns, counts), notes)
 
 
 def listed_counts(conns: Sequence[Any]) -> dict[str, int]:

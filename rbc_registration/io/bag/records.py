@@ -108,8 +108,8 @@ class BagContents(NamedTuple):
     """What :func:`read_bag` found: the node's inputs in bag (receive-time) order, every message
     as recorded (duplicates are the accumulator's to reject, as in the node), the targets,
     message counts per topic (as read), the other topics of the bag (name -> type), a line per
-    topic whose metadata count differs from the messages read, warnings (none today) and notes
-    (an input topic without messages)."""
+    topic whose metadata count differs from the messages read and notes (an input topic
+    without messages)."""
 
     path: Path
     inputs: tuple[Union[PairMessage, PointMessage], ...]
@@ -117,7 +117,6 @@ class BagContents(NamedTuple):
     counts: dict[str, int]
     other_topics: dict[str, str]
     count_mismatches: tuple[str, ...] = ()
-    warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
 
 
