@@ -19,6 +19,7 @@ from rosbags.typesys import TypesysError
 
 from ...core.constants import DESTINATION, WORKING
 from ..progress import Progress
+from .mcap_check import check_mcap, mcap_files
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
 from .typestore import check_definitions, make_typestore
@@ -38,15 +39,21 @@ _READ_ERRORS = (ReaderError, SerdeError, TypesysError, struct.error, OSError, EO
 
 @contextmanager
 def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
-    """Open a rosbag2 directory, ``.mcap`` or ``.db3`` file for reading.
+    """Open a rosbag2 directory, ``.mcap`` or ``.db3`` file for reading; the CRCs of its mcap
+    files are checked first (:mod:`.mcap_check`).
 
-    :raises BagError: when it does not exist or cannot be opened.
+    :raises BagError: when it does not exist, cannot be opened or fails a CRC check.
     """
     p = Path(path)
     if not p.exists():
         raise BagError(f"bag {p}: no such file or directory")
     if p.is_dir() and not (p / "metadata.yaml").is_file():
         raise BagError(f"bag {p}: not a rosbag2 directory (no metadata.yaml)")
+    for f in mcap_files(p):
+        try:
+            check_mcap(f)
+        except OSError:
+            pass                        # unreadable: opening it below says so
     try:
         reader = Reader(p)
         reader.open()

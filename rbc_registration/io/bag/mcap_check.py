@@ -1,0 +1,149 @@
+"""The CRC-32 checks of an mcap file, made here so that they do not depend on the rosbags
+version (rosbags 0.11.0, the lowest this package supports, checks none of them):
+
+- every Chunk's CRC of its uncompressed records (rosbag2's mcap writer writes it by default);
+- the Summary's CRC (the chunk indexes and statistics a reader goes by), over the bytes from
+  the summary's start through the footer's ``summary_offset_start`` field.
+
+A CRC of 0 means "not computed" (rosbags' own writer) and checks nothing. The data section's
+optional CRC (off by default in rosbag2) is not checked. A file cut short is left to the reader,
+which names how many messages it read: only complete records are checked here.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+from typing import BinaryIO, Callable, Optional
+
+from .records import BagError
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_FOOTER, OP_CHUNK, OP_DATA_END = 0x02, 0x06, 0x0F
+_RECORD = struct.Struct("<BQ")          # opcode, length of the record's body
+_CHUNK = struct.Struct("<QQQI")         # start, end [ns], uncompressed size, uncompressed CRC
+_FOOTER = struct.Struct("<BQQQI")       # opcode, length, summary_start, summary_offset_start, crc
+_BLOCK = 1 << 22                        # bytes hashed at a time (memory stays bounded)
+
+
+def _zstd() -> Callable[[bytes, int], bytes]:
+    try:                                        # Python 3.14, and rosbags >= 0.11.x's backport
+        from compression import zstd            # type: ignore[import-not-found]
+    except ImportError:
+        try:
+            from backports import zstd          # type: ignore[import-not-found,no-redef]
+        except ImportError:                     # rosbags 0.11.0 depends on zstandard
+            import zstandard
+
+            return lambda data, size: zstandard.ZstdDecompressor().decompress(
+                data, max_output_size=size)
+    return lambda data, _size: zstd.decompress(data)
+
+
+def _lz4() -> Callable[[bytes, int], bytes]:
+    from lz4.frame import decompress            # type: ignore[import-untyped]
+
+    return lambda data, _size: decompress(data)
+
+
+#: Chunk compression name -> a factory of ``decompress(data, uncompressed_size)``.
+DECOMPRESSORS: dict[str, Callable[[], Callable[[bytes, int], bytes]]] = {
+    "": lambda: lambda data, _size: data, "zstd": _zstd, "lz4": _lz4}
+
+
+def mcap_files(path: Path) -> list[Path]:
+    """The mcap files of a bag: ``path`` itself, or the ``.mcap`` files of its directory."""
+    if path.is_dir():
+        return sorted(p for p in path.glob("*.mcap") if p.is_file())
+    return [path] if path.suffix == ".mcap" else []
+
+
+def check_mcap(path: Path) -> None:
+    """Check the chunk and summary CRCs of one mcap file.
+
+    :raises BagError: naming the file, the record's byte offset and the CRCs, when a CRC does
+        not match or a chunk with a CRC cannot be decompressed.
+    """
+    with path.open("rb") as f:
+        size = f.seek(0, 2)
+        f.seek(0)
+        if f.read(len(MAGIC)) != MAGIC:
+            return                              # not an mcap file: the reader says so
+        _check_chunks(f, size, path)
+        _check_summary(f, size, path)
+
+
+def _corrupt(path: Path, what: str) -> BagError:
+    return BagError(f"bag {path}: corrupt: {what}; the file is damaged (a flipped bit or a bad "
+                    "copy): record or copy it again")
+
+
+def _check_chunks(f: BinaryIO, size: int, path: Path) -> None:
+    pos = len(MAGIC)
+    while pos + _RECORD.size <= size:
+        f.seek(pos)
+        op, length = _RECORD.unpack(f.read(_RECORD.size))
+        end = pos + _RECORD.size + length
+        if op in (OP_DATA_END, OP_FOOTER) or end > size:
+            return                              # the data section ends, or the file is cut
+        if op == OP_CHUNK:
+            _check_chunk(f.read(length), pos, path)
+        pos = end
+
+
+def _check_chunk(body: bytes, pos: int, path: Path) -> None:
+    if len(body) < _CHUNK.size + 4:
+        return                                  # malformed: the reader names it
+    _, _, uncompressed_size, crc = _CHUNK.unpack_from(body, 0)
+    name_len, = struct.unpack_from("<I", body, _CHUNK.size)
+    at = _CHUNK.size + 4 + name_len
+    if not crc or at + 8 > len(body):
+        return
+    compression = body[_CHUNK.size + 4:at].decode("utf-8", "replace")
+    data_len, = struct.unpack_from("<Q", body, at)
+    data = body[at + 8:at + 8 + data_len]
+    factory = DECOMPRESSORS.get(compression)
+    if factory is None or len(data) != data_len:
+        return                                  # the reader names the compression or length
+    try:
+        raw = factory()(data, uncompressed_size)
+    except Exception as exc:                    # noqa: BLE001 - each library raises its own
+        raise _corrupt(path, f"mcap chunk at byte {pos} cannot be decompressed "
+                       f"({compression}: {type(exc).__name__}: {exc})") from None
+    got = zlib.crc32(raw)
+    if got != crc:
+        raise _corrupt(path, f"mcap chunk at byte {pos} fails its CRC-32 check (stored "
+                       f"0x{crc:08x}, computed 0x{got:08x})")
+
+
+def _check_summary(f: BinaryIO, size: int, path: Path) -> None:
+    footer_at = size - len(MAGIC) - _FOOTER.size
+    if footer_at < len(MAGIC):
+        return
+    f.seek(footer_at)
+    raw = f.read(_FOOTER.size)
+    if f.read(len(MAGIC)) != MAGIC:
+        return                                  # no footer (cut short): the reader says so
+    op, length, start, _, crc = _FOOTER.unpack(raw)
+    if op != OP_FOOTER or length != _FOOTER.size - _RECORD.size or not crc or not start:
+        return
+    stop = footer_at + _FOOTER.size - 4         # through summary_offset_start
+    if not len(MAGIC) <= start <= footer_at:
+        return
+    got = _crc_of(f, start, stop)
+    if got is not None and got != crc:
+        raise _corrupt(path, f"mcap summary (from byte {start}) fails its CRC-32 check "
+                       f"(stored 0x{crc:08x}, computed 0x{got:08x})")
+
+
+def _crc_of(f: BinaryIO, start: int, stop: int) -> Optional[int]:
+    f.seek(start)
+    crc, left = 0, stop - start
+    while left > 0:
+        block = f.read(min(left, _BLOCK))
+        if not block:
+            return None
+        crc = zlib.crc32(block, crc)
+        left -= len(block)
+    return crc

@@ -1,0 +1,168 @@
+"""The mcap CRC checks (rbc_registration.io.bag.mcap_check) on every rosbags version this package
+supports: a flipped bit under a chunk's or the summary's CRC is one BagError naming the byte
+offset; a CRC of 0 checks nothing; a file cut short is still the reader's to report. No rclpy."""
+
+import struct
+import zlib
+from pathlib import Path
+
+import pytest
+
+from rbc_registration.core.synthetic import make_cell
+from rbc_registration.io.bag import mcap_check
+from rbc_registration.io.bag.reader import read_bag, read_raw
+from rbc_registration.io.bag.records import BagError
+from rbc_registration.io.bag.synthetic import cell_messages
+from rbc_registration.io.bag.writer import write_bag
+
+MAGIC = mcap_check.MAGIC
+
+
+def _zstd_compress(data: bytes) -> bytes:
+    try:
+        from compression import zstd
+    except ImportError:
+        try:
+            from backports import zstd
+        except ImportError:
+            import zstandard
+            return zstandard.ZstdCompressor().compress(data)
+    return zstd.compress(data)
+
+
+def _lz4_compress(data: bytes) -> bytes:
+    from lz4.frame import compress
+    return compress(data)
+
+
+COMPRESSORS = {"": lambda data: data, "zstd": _zstd_compress, "lz4": _lz4_compress}
+
+
+def _record(op: int, body: bytes) -> bytes:
+    return struct.pack("<BQ", op, len(body)) + body
+
+
+def _chunk(records: bytes, compression: str, crc: int) -> bytes:
+    data = COMPRESSORS[compression](records)
+    name = compression.encode()
+    return _record(0x06, struct.pack("<QQQI", 1, 2, len(records), crc)
+                   + struct.pack("<I", len(name)) + name + struct.pack("<Q", len(data)) + data)
+
+
+def _mcap(chunks: list[bytes], summary: bytes = b"", summary_crc: bool = True) -> bytes:
+    """A minimal mcap: magic, header, chunks, DataEnd, an optional summary, footer, magic."""
+    out = MAGIC + _record(0x01, struct.pack("<I", 4) + b"ros2" + struct.pack("<I", 0))
+    out += b"".join(chunks) + _record(0x0F, struct.pack("<I", 0))
+    start = len(out) if summary else 0
+    out += summary
+    footer = struct.pack("<BQQQ", 0x02, 20, start, 0)
+    crc = zlib.crc32(out[start:] + footer) if summary and summary_crc else 0
+    return out + footer + struct.pack("<I", crc) + MAGIC
+
+
+MESSAGES = b"".join(_record(0x05, struct.pack("<HIQQ", 1, k, k, k) + bytes(range(40)))
+                    for k in range(30))
+
+
+@pytest.mark.parametrize("compression", ["", "zstd", "lz4"])
+def test_a_chunk_whose_records_changed_fails_its_crc(tmp_path, compression):
+    f = tmp_path / "x.mcap"
+    good = _chunk(MESSAGES, compression, zlib.crc32(MESSAGES))
+    f.write_bytes(_mcap([good, good]))
+    mcap_check.check_mcap(f)                        # right CRCs pass
+    wrong = _chunk(MESSAGES, compression, zlib.crc32(MESSAGES) ^ 1)
+    f.write_bytes(_mcap([good, wrong]))
+    with pytest.raises(BagError, match=rf"bag {f}: corrupt: mcap chunk at byte "
+                                       rf"{len(MAGIC) + 21 + len(good)} fails its CRC-32 check "
+                                       r"\(stored 0x[0-9a-f]{8}, computed 0x[0-9a-f]{8}\)"):
+        mcap_check.check_mcap(f)
+
+
+def test_a_crc_of_zero_checks_nothing_and_a_cut_file_is_left_to_the_reader(tmp_path):
+    f = tmp_path / "x.mcap"
+    data = _mcap([_chunk(MESSAGES, "", 0), _chunk(MESSAGES, "", zlib.crc32(MESSAGES) ^ 1)])
+    f.write_bytes(data[:len(data) - 200])           # the wrong chunk is cut: not checked
+    mcap_check.check_mcap(f)
+    f.write_bytes(_mcap([_chunk(MESSAGES, "", 0)]))
+    mcap_check.check_mcap(f)
+    f.write_bytes(b"not an mcap file at all")
+    mcap_check.check_mcap(f)
+
+
+def test_a_compressed_chunk_that_does_not_decompress_is_corrupt(tmp_path):
+    f = tmp_path / "x.mcap"
+    chunk = bytearray(_chunk(MESSAGES, "lz4", zlib.crc32(MESSAGES)))
+    chunk[60:70] = b"\xff" * 10                      # inside the lz4 frame
+    f.write_bytes(_mcap([bytes(chunk)]))
+    with pytest.raises(BagError, match=r"corrupt: mcap chunk at byte \d+ cannot be "
+                                       r"decompressed \(lz4: "):
+        mcap_check.check_mcap(f)
+
+
+def test_the_summary_crc_covers_the_summary_and_the_footer_offsets(tmp_path):
+    f = tmp_path / "x.mcap"
+    summary = _record(0x0B, bytes(range(46)))        # e.g. Statistics
+    data = bytearray(_mcap([_chunk(MESSAGES, "", 0)], summary))
+    f.write_bytes(bytes(data))
+    mcap_check.check_mcap(f)
+    at = len(data) - len(MAGIC) - 29 - len(summary) + 12
+    data[at] ^= 0x04
+    f.write_bytes(bytes(data))
+    with pytest.raises(BagError, match=r"corrupt: mcap summary \(from byte \d+\) fails its "
+                                       r"CRC-32 check"):
+        mcap_check.check_mcap(f)
+    f.write_bytes(_mcap([_chunk(MESSAGES, "", 0)], summary, summary_crc=False))
+    mcap_check.check_mcap(f)
+
+
+# -- through read_bag / read_raw, on a bag rosbags wrote ----------------------------------------
+
+def _storage(bag: Path) -> Path:
+    return next(bag.glob("*.mcap"))
+
+
+def _with_crcs(data: bytes) -> bytearray:
+    """A rosbags mcap (uncompressed chunks, CRCs 0) with each chunk's and the summary's CRC-32
+    written in, as rosbag2's mcap writer does by default."""
+    out, i = bytearray(data), len(MAGIC)
+    while out[i] != 0x0F:                           # records up to DataEnd
+        size = struct.unpack_from("<Q", out, i + 1)[0]
+        if out[i] == 0x06:                          # Chunk: times, size, crc, compression, data
+            name = struct.unpack_from("<I", out, i + 37)[0]
+            assert name == 0, "uncompressed chunks expected"
+            length = struct.unpack_from("<Q", out, i + 41)[0]
+            struct.pack_into("<I", out, i + 33, zlib.crc32(out[i + 49:i + 49 + length]))
+        i += 9 + size
+    footer = len(out) - len(MAGIC) - 29
+    start = struct.unpack_from("<Q", out, footer + 9)[0]
+    struct.pack_into("<I", out, footer + 25, zlib.crc32(out[start:footer + 25]))
+    return out
+
+
+@pytest.fixture
+def crc_bag(tmp_path):
+    bag = tmp_path / "crc"
+    write_bag(bag, cell_messages(make_cell("RA", seed=0)), "mcap", progress=False)
+    data = _with_crcs(_storage(bag).read_bytes())
+    _storage(bag).write_bytes(bytes(data))
+    return bag, data
+
+
+def test_a_flipped_bit_in_a_coordinate_is_one_bag_error_not_a_wrong_coordinate(crc_bag):
+    bag, data = crc_bag
+    good = read_bag(bag, progress=False)            # the CRCs written in are right
+    assert good.inputs
+    data[len(data) // 3] ^= 0x10                    # inside the (one) chunk's messages
+    _storage(bag).write_bytes(bytes(data))
+    for read in (read_bag, read_raw):
+        with pytest.raises(BagError, match=r"corrupt: mcap chunk at byte \d+ fails its CRC-32"):
+            read(bag, progress=False)
+
+
+def test_a_flipped_bit_in_the_summary_is_one_bag_error(crc_bag):
+    bag, data = crc_bag
+    start = struct.unpack_from("<Q", data, len(data) - len(MAGIC) - 20)[0]
+    data[start + 20] ^= 0x01
+    _storage(bag).write_bytes(bytes(data))
+    with pytest.raises(BagError, match=r"corrupt: mcap summary \(from byte \d+\) fails"):
+        read_bag(bag, progress=False)
