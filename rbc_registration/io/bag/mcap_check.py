@@ -36,8 +36,10 @@ def _zstd() -> Callable[[bytes, int], bytes]:
         except ImportError:                     # rosbags 0.11.0 depends on zstandard
             import zstandard
 
-            return lambda data, size: zstandard.ZstdDecompressor().decompress(
-                data, max_output_size=size)
+            # streaming: a frame without its content size would otherwise allocate the
+            # chunk's stated size, which a flipped bit can make huge
+            return lambda data, _size: zstandard.ZstdDecompressor().decompressobj().decompress(
+                data)
     return lambda data, _size: zstd.decompress(data)
 
 
