@@ -275,6 +275,9 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
 
     :param node_options: passed to :class:`RegistrationNode` (e.g. ``write_snapshot``).
 
+    A SIGINT or SIGTERM while the node starts stops it with status 0 and one INFO line
+    ``stopped while starting (shutdown requested)``, as one while it spins does.
+
     Exits with status 1 and one FATAL line ``cannot start: <path and reason>`` when a
     parameter is invalid, ``state_dir`` is in use by another node, is not a usable directory,
     or holds a journal that is not a regular file or belongs to another setup, or a
@@ -289,26 +292,34 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
         get_logger("registration_node").fatal(f"cannot start: {exc}{hint}")
         raise SystemExit(1) from None
     node: Optional[RegistrationNode] = None
-    code = 0
+    code, spinning = 0, False
     try:
-        node = RegistrationNode(**node_options)
         # Single-threaded: in rclpy it takes messages about twice as fast as the multi-threaded
         # executor; model rebuilds run in their own thread, so services still answer meanwhile.
+        # Made before the node: a SIGTERM while the node is being made then stops it cleanly.
         executor = SingleThreadedExecutor()
+        node = RegistrationNode(**node_options)
         executor.add_node(node)
         freeze_startup_objects()    # shorter full garbage collections (runtime.py)
+        spinning = True
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ValueError, ParameterException, OSError) as exc:
-        get_logger("registration_node").fatal(start_failure(exc))
-        code = 1
-    except Exception as exc:  # any other error while starting (e.g. reading a calibration_file)
-        if node is not None:  # a failure while spinning keeps its traceback
-            raise
-        reason = start_failure(exc).removeprefix("cannot start: ")
-        get_logger("registration_node").fatal(f"cannot start: {type(exc).__name__}: {reason}")
-        code = 1
+    except Exception as exc:
+        if not spinning and not rclpy.ok():
+            # SIGINT/SIGTERM while starting: rclpy's handler shut the context down, and
+            # whatever was being created failed on it. A requested stop, not a failure.
+            get_logger("registration_node").info("stopped while starting (shutdown requested)")
+        elif isinstance(exc, (ValueError, ParameterException, OSError)):
+            get_logger("registration_node").fatal(start_failure(exc))
+            code = 1
+        elif node is not None:
+            raise             # a failure while spinning keeps its traceback
+        else:                 # any other error while starting (e.g. reading a calibration_file)
+            reason = start_failure(exc).removeprefix("cannot start: ")
+            get_logger("registration_node").fatal(f"cannot start: {type(exc).__name__}: "
+                                                  f"{reason}")
+            code = 1
     finally:
         if node is not None:
             node.destroy_node()

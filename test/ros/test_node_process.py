@@ -116,6 +116,42 @@ def test_a_bad_parameter_stops_the_node_with_a_reason(tmp_path, params, reason):
     assert reason in (tmp_path / "node.log").read_text()
 
 
+def test_a_sigterm_while_the_node_is_made_is_a_clean_stop(tmp_path):
+    """SIGTERM (ros2 launch stopping a node) while the node is being created: before, the
+    creation failed on the shut-down context with a traceback or ``cannot start: RCLError``,
+    exit 1; now one INFO line and exit 0, and the state_dir is released."""
+    state_dir = tmp_path / "state"
+    with open(tmp_path / "node.log", "w") as log:
+        proc = start_test_node(f"reg_term_{os.getpid()}", state_dir, log,
+                               command=(sys.executable,
+                                        os.path.join(HERE, "sigterm_while_starting.py")))
+        assert proc.wait(timeout=60) == 0, (tmp_path / "node.log").read_text()
+    text = (tmp_path / "node.log").read_text()
+    assert "stopped while starting (shutdown requested)" in text
+    assert "Traceback" not in text and "cannot start" not in text and "FATAL" not in text
+    with open(tmp_path / "node2.log", "w") as log:       # the lock was released
+        proc = start_test_node(f"reg_term2_{os.getpid()}", state_dir, log)
+        try:
+            wait_for(lambda: "registering" in (tmp_path / "node2.log").read_text(), 60,
+                     "the second node's start")
+        finally:
+            assert stop_process(proc) == 0, (tmp_path / "node2.log").read_text()
+
+
+@pytest.mark.parametrize("delay", [0.6, 1.0, 1.4, 1.8])
+def test_a_sigterm_at_any_moment_of_the_start_is_never_a_traceback(tmp_path, delay):
+    """A real SIGTERM from outside at moments spread over the start (imports, rclpy.init, the
+    node's creation, the first spin): the process ends at once, by the signal itself (-15,
+    before rclpy's handler exists) or with status 0, never with a traceback or a FATAL line."""
+    with open(tmp_path / "node.log", "w") as log:
+        proc = start_test_node(f"reg_term_{os.getpid()}", tmp_path / "state", log)
+        time.sleep(delay)
+        rc = stop_process(proc, signal.SIGTERM)
+    text = (tmp_path / "node.log").read_text()
+    assert rc in (0, -signal.SIGTERM), text
+    assert "Traceback" not in text and "FATAL" not in text, text
+
+
 class TestKillAndRestart(RosTestBase):
     """The test process is the client; the node is a subprocess killed with SIGKILL."""
 
