@@ -191,3 +191,51 @@ def test_any_flipped_bit_is_refused_in_one_line_or_changes_nothing_read(crc_bag)
         else:
             assert (got.inputs, got.targets) == (ref.inputs, ref.targets)
     assert refused >= 30
+
+
+def test_only_the_files_the_metadata_lists_are_checked(crc_bag):
+    """A damaged .mcap beside a bag (an old take copied into the directory) is not the bag's:
+    the bag reads; a bag's own damaged file is refused."""
+    bag, data = crc_bag
+    damaged = bytearray(data)
+    damaged[len(damaged) // 3] ^= 0x10
+    own = _storage(bag)
+    (bag / "old_take.mcap").write_bytes(bytes(damaged))
+    assert mcap_check.mcap_files(bag) == [own] and len(list(bag.glob("*.mcap"))) == 2
+    assert read_bag(bag, progress=False).inputs
+    (bag / "metadata.yaml").write_text("not: [a, bag")    # unreadable: the reader says so
+    assert mcap_check.mcap_files(bag) == []
+
+
+def test_a_compression_without_its_library_here_is_left_to_the_reader(tmp_path, monkeypatch):
+    """No decompression library for a chunk's compression (e.g. lz4 where rosbags installed
+    safelz4): the check is skipped, not the file called damaged."""
+    def missing():
+        raise ImportError("No module named 'lz4'")
+
+    monkeypatch.setitem(mcap_check.DECOMPRESSORS, "lz4", missing)
+    f = tmp_path / "x.mcap"
+    f.write_bytes(_mcap([_chunk(MESSAGES, "lz4", zlib.crc32(MESSAGES) ^ 1)]))
+    mcap_check.check_mcap(f)
+
+
+def test_a_memory_error_of_the_storage_library_is_one_bag_error(tmp_path, monkeypatch):
+    """A flipped record length in an mcap without chunks (rosbag2's fastwrite preset: no CRC)
+    makes rosbags' reader ask for a huge buffer (a review found MemoryError escaping)."""
+    from rosbags.rosbag2 import Reader
+
+    bag = tmp_path / "mem"
+    write_bag(bag, cell_messages(make_cell("A", seed=0)), "mcap", progress=False)
+    real = Reader.messages
+
+    def messages(self, *args, **kwargs):
+        for k, item in enumerate(real(self, *args, **kwargs)):
+            if k == 5:
+                raise MemoryError
+            yield item
+
+    monkeypatch.setattr(Reader, "messages", messages)
+    for read in (read_bag, read_raw):
+        with pytest.raises(BagError, match=r"truncated or corrupt after 5 message\(s\): "
+                                           "MemoryError"):
+            read(bag, progress=False)

@@ -17,6 +17,8 @@ import zlib
 from pathlib import Path
 from typing import BinaryIO, Callable, Optional
 
+import yaml
+
 from .records import BagError
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -44,7 +46,10 @@ def _zstd() -> Callable[[bytes, int], bytes]:
 
 
 def _lz4() -> Callable[[bytes, int], bytes]:
-    from lz4.frame import decompress            # type: ignore[import-untyped]
+    try:                                        # rosbags installs safelz4 on newer Pythons
+        from safelz4.frame import decompress    # type: ignore[import-not-found]
+    except ImportError:
+        from lz4.frame import decompress        # type: ignore[import-untyped,no-redef]
 
     return lambda data, _size: decompress(data)
 
@@ -55,10 +60,18 @@ DECOMPRESSORS: dict[str, Callable[[], Callable[[bytes, int], bytes]]] = {
 
 
 def mcap_files(path: Path) -> list[Path]:
-    """The mcap files of a bag: ``path`` itself, or the ``.mcap`` files of its directory."""
-    if path.is_dir():
-        return sorted(p for p in path.glob("*.mcap") if p.is_file())
-    return [path] if path.suffix == ".mcap" else []
+    """The mcap files of a bag: ``path`` itself, or the ``.mcap`` files its ``metadata.yaml``
+    lists (``relative_file_paths``; another file in the directory is not the bag's). A
+    metadata file that cannot be read gives none: opening the bag then says what is wrong."""
+    if not path.is_dir():
+        return [path] if path.suffix == ".mcap" else []
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        names = [str(name) for name in info["relative_file_paths"]]
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
+        return []
+    return [path / name for name in names
+            if name.endswith(".mcap") and (path / name).is_file()]
 
 
 def check_mcap(path: Path) -> None:
@@ -89,19 +102,19 @@ def _check_chunks(f: BinaryIO, size: int, path: Path) -> None:
         end = pos + _RECORD.size + length
         if op in (OP_DATA_END, OP_FOOTER) or end > size:
             return                              # the data section ends, or the file is cut
-        if op == OP_CHUNK:
-            _check_chunk(f.read(length), pos, path)
+        if op == OP_CHUNK and length >= _CHUNK.size + 4:
+            head = f.read(_CHUNK.size)
+            if _CHUNK.unpack(head)[3]:          # a CRC to check: read the rest of the chunk
+                _check_chunk(head + f.read(length - _CHUNK.size), pos, path)
         pos = end
 
 
 def _check_chunk(body: bytes, pos: int, path: Path) -> None:
-    if len(body) < _CHUNK.size + 4:
-        return                                  # malformed: the reader names it
     _, _, uncompressed_size, crc = _CHUNK.unpack_from(body, 0)
     name_len, = struct.unpack_from("<I", body, _CHUNK.size)
     at = _CHUNK.size + 4 + name_len
-    if not crc or at + 8 > len(body):
-        return
+    if at + 8 > len(body):
+        return                                  # malformed: the reader names it
     compression = body[_CHUNK.size + 4:at].decode("utf-8", "replace")
     data_len, = struct.unpack_from("<Q", body, at)
     data = body[at + 8:at + 8 + data_len]
@@ -109,7 +122,11 @@ def _check_chunk(body: bytes, pos: int, path: Path) -> None:
     if factory is None or len(data) != data_len:
         return                                  # the reader names the compression or length
     try:
-        raw = factory()(data, uncompressed_size)
+        decompress = factory()
+    except ImportError:
+        return                                  # no library for it here: the reader says so
+    try:
+        raw = decompress(data, uncompressed_size)
     except Exception as exc:                    # noqa: BLE001 - each library raises its own
         raise _corrupt(path, f"mcap chunk at byte {pos} cannot be decompressed "
                        f"({compression}: {type(exc).__name__}: {exc})") from None

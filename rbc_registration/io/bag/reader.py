@@ -31,10 +31,10 @@ except ImportError:             # pragma: no cover - depends on the rosbags inst
     _SQLITE_ERRORS = (sqlite3.Error,)
 
 #: Errors of rosbags and of the storage libraries on a bad or truncated file (a corrupt mcap
-#: length field raises OverflowError).
+#: length field raises OverflowError, or MemoryError in an mcap without chunks).
 _READ_ERRORS = (ReaderError, SerdeError, TypesysError, struct.error, OSError, EOFError, KeyError,
                 IndexError, ValueError, UnicodeDecodeError, AssertionError,
-                OverflowError) + _SQLITE_ERRORS
+                OverflowError, MemoryError) + _SQLITE_ERRORS
 
 
 @contextmanager
