@@ -19,7 +19,7 @@ from rosbags.typesys import TypesysError
 
 from ...core.constants import DESTINATION, WORKING
 from ..progress import Progress
-from .mcap_check import check_mcap, mcap_files
+from .mcap_crc import check_mcap, mcap_files
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
 from .typestore import check_definitions, make_typestore
@@ -40,7 +40,7 @@ _READ_ERRORS = (ReaderError, SerdeError, TypesysError, struct.error, OSError, EO
 @contextmanager
 def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
     """Open a rosbag2 directory, ``.mcap`` or ``.db3`` file for reading; the CRCs of its mcap
-    files are checked first (:mod:`.mcap_check`).
+    files are checked first (:mod:`.mcap_crc`).
 
     :raises BagError: when it does not exist, cannot be opened or fails a CRC check.
     """

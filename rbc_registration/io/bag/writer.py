@@ -1,5 +1,6 @@
 """Writing registration bags with ``rosbags`` (no rclpy): ``FiducialPair`` and
-``PointStamped`` messages, sqlite3 or mcap storage."""
+``PointStamped`` messages, sqlite3 or mcap storage (an mcap file with the chunk and summary
+CRC-32s that rosbag2 writes, :func:`.mcap_crc.write_crcs`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import Any, Iterable, Sequence, Union
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
 from ..progress import Progress
+from .mcap_crc import mcap_files, write_crcs
 from .records import FIDUCIAL_PAIR, MESSAGE_TYPES, POINT_STAMPED, STORAGES, BagError, OutMessage
 from .typestore import make_typestore
 
@@ -58,5 +60,8 @@ def write_bag(path: Union[str, Path], messages: Iterable[OutMessage], storage: s
                          store.serialize_cdr(msg, types[m.kind]))
             n += 1
             bar.update()
+    if storage == "mcap":           # the CRCs rosbag2 writes and rosbags' writer leaves 0
+        for f in mcap_files(Path(path)):
+            write_crcs(f)
     bar.done()
     return n

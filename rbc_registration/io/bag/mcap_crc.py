@@ -1,11 +1,12 @@
-"""The CRC-32 checks of an mcap file, made here so that they do not depend on the rosbags
-version (rosbags 0.11.0, the lowest this package supports, checks none of them):
+"""The CRC-32s of an mcap file, checked here so that the check does not depend on the rosbags
+version (rosbags 0.11.0, the lowest this package supports, checks none of them), and written
+into the files this package writes (:func:`write_crcs`; rosbags' writer leaves them 0):
 
 - every Chunk's CRC of its uncompressed records (rosbag2's mcap writer writes it by default);
 - the Summary's CRC (the chunk indexes and statistics a reader goes by), over the bytes from
   the summary's start through the footer's ``summary_offset_start`` field.
 
-A CRC of 0 means "not computed" (rosbags' own writer) and checks nothing. The data section's
+A CRC of 0 means "not computed" and checks nothing. The data section's
 optional CRC (off by default in rosbag2) is not checked. A file cut short is left to the reader,
 which names how many messages it read: only complete records are checked here.
 """
@@ -15,7 +16,7 @@ from __future__ import annotations
 import struct
 import zlib
 from pathlib import Path
-from typing import BinaryIO, Callable, Optional
+from typing import BinaryIO, Callable, Iterator, Optional
 
 import yaml
 
@@ -94,7 +95,8 @@ def _corrupt(path: Path, what: str) -> BagError:
                     "copy): record or copy it again")
 
 
-def _check_chunks(f: BinaryIO, size: int, path: Path) -> None:
+def _chunks(f: BinaryIO, size: int) -> Iterator[tuple[int, int]]:
+    """``(byte offset, body length)`` of each complete Chunk record of the data section."""
     pos = len(MAGIC)
     while pos + _RECORD.size <= size:
         f.seek(pos)
@@ -103,57 +105,105 @@ def _check_chunks(f: BinaryIO, size: int, path: Path) -> None:
         if op in (OP_DATA_END, OP_FOOTER) or end > size:
             return                              # the data section ends, or the file is cut
         if op == OP_CHUNK and length >= _CHUNK.size + 4:
-            head = f.read(_CHUNK.size)
-            if _CHUNK.unpack(head)[3]:          # a CRC to check: read the rest of the chunk
-                _check_chunk(head + f.read(length - _CHUNK.size), pos, path)
+            yield pos, length
         pos = end
 
 
-def _check_chunk(body: bytes, pos: int, path: Path) -> None:
-    _, _, uncompressed_size, crc = _CHUNK.unpack_from(body, 0)
+def _check_chunks(f: BinaryIO, size: int, path: Path) -> None:
+    for pos, length in _chunks(f, size):
+        f.seek(pos + _RECORD.size)
+        head = f.read(_CHUNK.size)
+        crc = _CHUNK.unpack(head)[3]
+        if not crc:
+            continue                            # not computed: nothing to check
+        got = _records_crc(head + f.read(length - _CHUNK.size), pos, path)
+        if got is not None and got != crc:
+            raise _corrupt(path, f"mcap chunk at byte {pos} fails its CRC-32 check (stored "
+                           f"0x{crc:08x}, computed 0x{got:08x})")
+
+
+def _records_crc(body: bytes, pos: int, path: Path) -> Optional[int]:
+    """The CRC-32 of a chunk's uncompressed records; ``None`` when it cannot be computed here
+    (a malformed length or an unknown compression, which the reader names, or no library)."""
+    uncompressed_size = _CHUNK.unpack_from(body, 0)[2]
     name_len, = struct.unpack_from("<I", body, _CHUNK.size)
     at = _CHUNK.size + 4 + name_len
     if at + 8 > len(body):
-        return                                  # malformed: the reader names it
+        return None
     compression = body[_CHUNK.size + 4:at].decode("utf-8", "replace")
     data_len, = struct.unpack_from("<Q", body, at)
     data = body[at + 8:at + 8 + data_len]
     factory = DECOMPRESSORS.get(compression)
     if factory is None or len(data) != data_len:
-        return                                  # the reader names the compression or length
+        return None
     try:
         decompress = factory()
     except ImportError:
-        return                                  # no library for it here: the reader says so
+        return None
     try:
-        raw = decompress(data, uncompressed_size)
+        return zlib.crc32(decompress(data, uncompressed_size))
     except Exception as exc:                    # noqa: BLE001 - each library raises its own
         raise _corrupt(path, f"mcap chunk at byte {pos} cannot be decompressed "
                        f"({compression}: {type(exc).__name__}: {exc})") from None
-    got = zlib.crc32(raw)
-    if got != crc:
-        raise _corrupt(path, f"mcap chunk at byte {pos} fails its CRC-32 check (stored "
-                       f"0x{crc:08x}, computed 0x{got:08x})")
 
 
-def _check_summary(f: BinaryIO, size: int, path: Path) -> None:
+def _footer(f: BinaryIO, size: int) -> Optional[tuple[int, int, int]]:
+    """``(footer offset, summary_start, summary_crc)``, or ``None`` without a valid footer
+    (cut short: the reader says so) or a summary."""
     footer_at = size - len(MAGIC) - _FOOTER.size
     if footer_at < len(MAGIC):
-        return
+        return None
     f.seek(footer_at)
     raw = f.read(_FOOTER.size)
     if f.read(len(MAGIC)) != MAGIC:
-        return                                  # no footer (cut short): the reader says so
+        return None
     op, length, start, _, crc = _FOOTER.unpack(raw)
-    if op != OP_FOOTER or length != _FOOTER.size - _RECORD.size or not crc or not start:
+    if op != OP_FOOTER or length != _FOOTER.size - _RECORD.size or not start \
+            or not len(MAGIC) <= start <= footer_at:
+        return None
+    return footer_at, start, crc
+
+
+def _summary_crc(f: BinaryIO, footer_at: int, start: int) -> Optional[int]:
+    return _crc_of(f, start, footer_at + _FOOTER.size - 4)     # through summary_offset_start
+
+
+def _check_summary(f: BinaryIO, size: int, path: Path) -> None:
+    footer = _footer(f, size)
+    if footer is None or not footer[2]:
         return
-    stop = footer_at + _FOOTER.size - 4         # through summary_offset_start
-    if not len(MAGIC) <= start <= footer_at:
-        return
-    got = _crc_of(f, start, stop)
+    footer_at, start, crc = footer
+    got = _summary_crc(f, footer_at, start)
     if got is not None and got != crc:
         raise _corrupt(path, f"mcap summary (from byte {start}) fails its CRC-32 check "
                        f"(stored 0x{crc:08x}, computed 0x{got:08x})")
+
+
+def write_crcs(path: Path) -> None:
+    """Write the CRC-32 of every chunk whose CRC is 0 and of the summary into an mcap file,
+    in place (no size changes), as rosbag2's mcap writer computes them: the CRCs rosbags' writer
+    leaves out, so that :func:`check_mcap` can check a bag this package wrote."""
+    with path.open("r+b") as f:
+        size = f.seek(0, 2)
+        f.seek(0)
+        if f.read(len(MAGIC)) != MAGIC:
+            raise ValueError(f"{path}: not an mcap file")
+        for pos, length in _chunks(f, size):
+            f.seek(pos + _RECORD.size)
+            body = f.read(length)
+            if _CHUNK.unpack_from(body, 0)[3]:
+                continue
+            crc = _records_crc(body, pos, path)
+            if crc is not None:
+                f.seek(pos + _RECORD.size + _CHUNK.size - 4)
+                f.write(struct.pack("<I", crc))
+        footer = _footer(f, size)
+        if footer is not None:
+            footer_at, start, _ = footer
+            crc = _summary_crc(f, footer_at, start)
+            if crc is not None:
+                f.seek(footer_at + _FOOTER.size - 4)
+                f.write(struct.pack("<I", crc))
 
 
 def _crc_of(f: BinaryIO, start: int, stop: int) -> Optional[int]:

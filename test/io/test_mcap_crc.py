@@ -1,4 +1,4 @@
-"""The mcap CRC checks (rbc_registration.io.bag.mcap_check) on every rosbags version this package
+"""The mcap CRC checks (rbc_registration.io.bag.mcap_crc) on every rosbags version this package
 supports: a flipped bit under a chunk's or the summary's CRC is one BagError naming the byte
 offset; a CRC of 0 checks nothing; a file cut short is still the reader's to report. No rclpy."""
 
@@ -9,13 +9,13 @@ from pathlib import Path
 import pytest
 
 from rbc_registration.core.synthetic import make_cell
-from rbc_registration.io.bag import mcap_check
+from rbc_registration.io.bag import mcap_crc
 from rbc_registration.io.bag.reader import read_bag, read_raw
 from rbc_registration.io.bag.records import BagError
 from rbc_registration.io.bag.synthetic import cell_messages
 from rbc_registration.io.bag.writer import write_bag
 
-MAGIC = mcap_check.MAGIC
+MAGIC = mcap_crc.MAGIC
 
 
 def _zstd_compress(data: bytes) -> bytes:
@@ -69,24 +69,24 @@ def test_a_chunk_whose_records_changed_fails_its_crc(tmp_path, compression):
     f = tmp_path / "x.mcap"
     good = _chunk(MESSAGES, compression, zlib.crc32(MESSAGES))
     f.write_bytes(_mcap([good, good]))
-    mcap_check.check_mcap(f)                        # right CRCs pass
+    mcap_crc.check_mcap(f)                        # right CRCs pass
     wrong = _chunk(MESSAGES, compression, zlib.crc32(MESSAGES) ^ 1)
     f.write_bytes(_mcap([good, wrong]))
     with pytest.raises(BagError, match=rf"bag {f}: corrupt: mcap chunk at byte "
                                        rf"{len(MAGIC) + 21 + len(good)} fails its CRC-32 check "
                                        r"\(stored 0x[0-9a-f]{8}, computed 0x[0-9a-f]{8}\)"):
-        mcap_check.check_mcap(f)
+        mcap_crc.check_mcap(f)
 
 
 def test_a_crc_of_zero_checks_nothing_and_a_cut_file_is_left_to_the_reader(tmp_path):
     f = tmp_path / "x.mcap"
     data = _mcap([_chunk(MESSAGES, "", 0), _chunk(MESSAGES, "", zlib.crc32(MESSAGES) ^ 1)])
     f.write_bytes(data[:len(data) - 200])           # the wrong chunk is cut: not checked
-    mcap_check.check_mcap(f)
+    mcap_crc.check_mcap(f)
     f.write_bytes(_mcap([_chunk(MESSAGES, "", 0)]))
-    mcap_check.check_mcap(f)
+    mcap_crc.check_mcap(f)
     f.write_bytes(b"not an mcap file at all")
-    mcap_check.check_mcap(f)
+    mcap_crc.check_mcap(f)
 
 
 def test_a_compressed_chunk_that_does_not_decompress_is_corrupt(tmp_path):
@@ -96,7 +96,7 @@ def test_a_compressed_chunk_that_does_not_decompress_is_corrupt(tmp_path):
     f.write_bytes(_mcap([bytes(chunk)]))
     with pytest.raises(BagError, match=r"corrupt: mcap chunk at byte \d+ cannot be "
                                        r"decompressed \(lz4: "):
-        mcap_check.check_mcap(f)
+        mcap_crc.check_mcap(f)
 
 
 def test_the_summary_crc_covers_the_summary_and_the_footer_offsets(tmp_path):
@@ -104,53 +104,55 @@ def test_the_summary_crc_covers_the_summary_and_the_footer_offsets(tmp_path):
     summary = _record(0x0B, bytes(range(46)))        # e.g. Statistics
     data = bytearray(_mcap([_chunk(MESSAGES, "", 0)], summary))
     f.write_bytes(bytes(data))
-    mcap_check.check_mcap(f)
+    mcap_crc.check_mcap(f)
     at = len(data) - len(MAGIC) - 29 - len(summary) + 12
     data[at] ^= 0x04
     f.write_bytes(bytes(data))
     with pytest.raises(BagError, match=r"corrupt: mcap summary \(from byte \d+\) fails its "
                                        r"CRC-32 check"):
-        mcap_check.check_mcap(f)
+        mcap_crc.check_mcap(f)
     f.write_bytes(_mcap([_chunk(MESSAGES, "", 0)], summary, summary_crc=False))
-    mcap_check.check_mcap(f)
+    mcap_crc.check_mcap(f)
 
 
-# -- through read_bag / read_raw, on a bag rosbags wrote ----------------------------------------
+# -- through read_bag / read_raw, on a bag write_bag wrote ----------------------------------------
 
 def _storage(bag: Path) -> Path:
     return next(bag.glob("*.mcap"))
 
 
-def _with_crcs(data: bytes) -> bytearray:
-    """A rosbags mcap (uncompressed chunks, CRCs 0) with each chunk's and the summary's CRC-32
-    written in, as rosbag2's mcap writer does by default."""
-    out, i = bytearray(data), len(MAGIC)
-    while out[i] != 0x0F:                           # records up to DataEnd
-        size = struct.unpack_from("<Q", out, i + 1)[0]
-        if out[i] == 0x06:                          # Chunk: times, size, crc, compression, data
-            name = struct.unpack_from("<I", out, i + 37)[0]
-            assert name == 0, "uncompressed chunks expected"
-            length = struct.unpack_from("<Q", out, i + 41)[0]
-            struct.pack_into("<I", out, i + 33, zlib.crc32(out[i + 49:i + 49 + length]))
-        i += 9 + size
-    footer = len(out) - len(MAGIC) - 29
-    start = struct.unpack_from("<Q", out, footer + 9)[0]
-    struct.pack_into("<I", out, footer + 25, zlib.crc32(out[start:footer + 25]))
-    return out
+def _chunk_and_summary_crcs(data: bytes) -> tuple[list[int], int]:
+    """The CRC fields as stored: of each chunk, and of the summary (in the footer)."""
+    crcs, i = [], len(MAGIC)
+    while data[i] != 0x0F:                          # records up to DataEnd
+        if data[i] == 0x06:
+            crcs.append(struct.unpack_from("<I", data, i + 33)[0])
+        i += 9 + struct.unpack_from("<Q", data, i + 1)[0]
+    return crcs, struct.unpack_from("<I", data, len(data) - len(MAGIC) - 4)[0]
 
 
 @pytest.fixture
 def crc_bag(tmp_path):
+    """An mcap bag as write_bag writes it (synth-bag): with its CRCs, as rosbag2 writes them."""
     bag = tmp_path / "crc"
     write_bag(bag, cell_messages(make_cell("RA", seed=0)), "mcap", progress=False)
-    data = _with_crcs(_storage(bag).read_bytes())
-    _storage(bag).write_bytes(bytes(data))
-    return bag, data
+    return bag, bytearray(_storage(bag).read_bytes())
+
+
+def test_a_bag_this_package_writes_carries_the_crcs(crc_bag):
+    bag, data = crc_bag
+    chunks, summary = _chunk_and_summary_crcs(data)
+    assert chunks and all(chunks) and summary
+    mcap_crc.check_mcap(_storage(bag))
+    copy = bag.parent / "copy.mcap"                  # written again: the same bytes
+    copy.write_bytes(bytes(data))
+    mcap_crc.write_crcs(copy)
+    assert copy.read_bytes() == bytes(data)
 
 
 def test_a_flipped_bit_in_a_coordinate_is_one_bag_error_not_a_wrong_coordinate(crc_bag):
     bag, data = crc_bag
-    good = read_bag(bag, progress=False)            # the CRCs written in are right
+    good = read_bag(bag, progress=False)            # the CRCs write_bag wrote are right
     assert good.inputs
     data[len(data) // 3] ^= 0x10                    # inside the (one) chunk's messages
     _storage(bag).write_bytes(bytes(data))
@@ -201,10 +203,10 @@ def test_only_the_files_the_metadata_lists_are_checked(crc_bag):
     damaged[len(damaged) // 3] ^= 0x10
     own = _storage(bag)
     (bag / "old_take.mcap").write_bytes(bytes(damaged))
-    assert mcap_check.mcap_files(bag) == [own] and len(list(bag.glob("*.mcap"))) == 2
+    assert mcap_crc.mcap_files(bag) == [own] and len(list(bag.glob("*.mcap"))) == 2
     assert read_bag(bag, progress=False).inputs
     (bag / "metadata.yaml").write_text("not: [a, bag")    # unreadable: the reader says so
-    assert mcap_check.mcap_files(bag) == []
+    assert mcap_crc.mcap_files(bag) == []
 
 
 def test_a_compression_without_its_library_here_is_left_to_the_reader(tmp_path, monkeypatch):
@@ -213,10 +215,10 @@ def test_a_compression_without_its_library_here_is_left_to_the_reader(tmp_path, 
     def missing():
         raise ImportError("No module named 'lz4'")
 
-    monkeypatch.setitem(mcap_check.DECOMPRESSORS, "lz4", missing)
+    monkeypatch.setitem(mcap_crc.DECOMPRESSORS, "lz4", missing)
     f = tmp_path / "x.mcap"
     f.write_bytes(_mcap([_chunk(MESSAGES, "lz4", zlib.crc32(MESSAGES) ^ 1)]))
-    mcap_check.check_mcap(f)
+    mcap_crc.check_mcap(f)
 
 
 def test_a_memory_error_of_the_storage_library_is_one_bag_error(tmp_path, monkeypatch):
