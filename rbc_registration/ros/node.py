@@ -276,7 +276,9 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
     :param node_options: passed to :class:`RegistrationNode` (e.g. ``write_snapshot``).
 
     A SIGINT or SIGTERM while the node starts stops it with status 0 and one INFO line
-    ``stopped while starting (shutdown requested)``, as one while it spins does.
+    ``stopped while starting (shutdown requested)``; one while it spins stops it with status 0
+    and no line, also when the signal lands inside the executor's wait (its failure on the
+    shut-down context is logged at DEBUG).
 
     Exits with status 1 and one FATAL line ``cannot start: <path and reason>`` when a
     parameter is invalid, ``state_dir`` is in use by another node, is not a usable directory,
@@ -306,10 +308,17 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:
-        if not spinning and not rclpy.ok():
-            # SIGINT/SIGTERM while starting: rclpy's handler shut the context down, and
-            # whatever was being created failed on it. A requested stop, not a failure.
-            get_logger("registration_node").info("stopped while starting (shutdown requested)")
+        if not rclpy.ok():
+            # SIGINT/SIGTERM: rclpy's handler shut the context down, and whatever was being
+            # created (while starting) or the executor's next wait set (while spinning: the
+            # signal came between spin's context check and spin_once) failed on it. A
+            # requested stop, not a failure.
+            if spinning:
+                get_logger("registration_node").debug(
+                    f"stopped (shutdown requested): {type(exc).__name__}: {exc}")
+            else:
+                get_logger("registration_node").info(
+                    "stopped while starting (shutdown requested)")
         elif isinstance(exc, (ValueError, ParameterException, OSError)):
             get_logger("registration_node").fatal(start_failure(exc))
             code = 1
