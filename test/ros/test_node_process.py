@@ -121,13 +121,13 @@ def test_a_sigterm_while_the_node_is_made_or_waits_is_a_clean_stop(tmp_path, mom
     """SIGTERM (ros2 launch stopping a node) while the node is being created (``make``), or
     between the executor's context check and its next wait (``spin``): before, the creation
     failed on the shut-down context with a traceback or ``cannot start: RCLError``, exit 1, and
-    the wait with an ``RCLError`` traceback, exit 1 (seen in CI, 1 run in ~20); now exit 0,
+    the wait with an ``RCLError`` traceback, exit 1 (seen once in CI); now exit 0,
     one INFO line while starting and none while spinning, and the state_dir is released."""
     state_dir = tmp_path / "state"
     with open(tmp_path / "node.log", "w") as log:
         proc = start_test_node(f"reg_term_{os.getpid()}", state_dir, log,
                                command=(sys.executable,
-                                        os.path.join(HERE, "sigterm_while_starting.py")),
+                                        os.path.join(HERE, "sigterm_at_moment.py")),
                                env={"RBC_SIGTERM_AT": moment})
         assert proc.wait(timeout=60) == 0, (tmp_path / "node.log").read_text()
     text = (tmp_path / "node.log").read_text()
