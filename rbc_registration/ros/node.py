@@ -234,15 +234,13 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         # kriging_warm_start: the served model's kriging hyper-parameters start the next fit.
         state = self._build(fiducials, settings, self.get_clock().now().nanoseconds,
                             warm_start(self._state) if settings.kriging_warm_start else None)
-        with self._pub_lock:
-            if generation != self._generation:
-                return
-            previous, self._state = self._state, state
+        previous = self._serve_model(state, disabled_points, generation)
+        if previous is None:
+            return              # ~/reset came meanwhile
         if state.error:
             self.get_logger().warning(state.error)
         elif state.warning and state.warning != previous.warning:
             self.get_logger().warning(state.warning)
-        self._publish_model(state, disabled_points, generation)
 
     def _on_worker_error(self, exc: BaseException) -> None:
         if isinstance(exc, BuildCancelled):   # destroy_node killed the build process

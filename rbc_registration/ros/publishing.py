@@ -48,17 +48,24 @@ class PublishingMixin:
     get_logger: Any
     get_name: Any
 
-    def _publish_model(self, state: ModelState, disabled_points: Mapping[str, Sequence[float]],
-                       generation: int) -> None:
-        """Publish a new model of ``generation`` (recompute thread), unless ``~/reset`` has
-        bumped the generation since. The markers are built before the publishing lock is taken:
-        the executor's status timer takes that lock too."""
+    def _serve_model(self, state: ModelState, disabled_points: Mapping[str, Sequence[float]],
+                     generation: int) -> Optional[ModelState]:
+        """Serve and publish a new model of ``generation`` (recompute thread), unless
+        ``~/reset`` has bumped the generation since; returns the model served before it, or
+        ``None`` when ``state`` was discarded.
+
+        The markers are built first, without the publishing lock (the executor's status timer
+        takes it too). Then, under one hold of the lock, the model is swapped in and its
+        transforms, ``/tf_static`` and markers are published: a ``~/status`` whose
+        ``last_recompute`` is this rebuild (the documented sign that a rebuild is done) is
+        published after them, never before."""
         s = self._settings
         now = self.get_clock().now().to_msg()
         markers = markers_msg(state, s, now, disabled_points)
         with self._pub_lock:
             if generation != self._generation:
-                return          # reset meanwhile: neither /tf_static nor a snapshot of it
+                return None     # reset meanwhile: neither served, published nor saved
+            previous, self._state = self._state, state
             if state.model is not None:
                 corrected = conv.registration_to_transform(
                     state.model.corrected, s.destination_frame, s.working_frame, now)
@@ -79,6 +86,7 @@ class PublishingMixin:
         self._plan_model(state)   # ~/status expected_target_error follows from its thread
         if s.state_dir:
             self._snapshots.submit((state, generation))   # serialised and written in its thread
+        return previous
 
     def _on_snapshot_error(self, exc: BaseException) -> None:
         # e.g. disk full: the journal still holds every measurement
@@ -105,10 +113,13 @@ class PublishingMixin:
         return msg
 
     def _publish_status(self) -> None:
-        state = self._state
-        status = self.status(state)
-        loaded = self._loaded
+        """Publish ``~/status`` and ``/diagnostics`` of the model served now. The model is read
+        under the publishing lock: a status never names a rebuild whose transforms are not yet
+        published, and never an older one than a status before it."""
         with self._pub_lock:
+            state = self._state
+            status = self.status(state)
+            loaded = self._loaded
             self._health.stale_after = self._settings.stale_after
             health = health_of(status, self._health, self._ingest.journal_error,
                                loaded.describe() if loaded is not None else "", state.warning,

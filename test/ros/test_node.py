@@ -86,11 +86,16 @@ class NodeTestBase(RosTestBase):
                              request if request is not None else srv_type.Request())
 
     def recompute(self, node):
-        """~/recompute answers at once; wait for the rebuild covering the request."""
+        """~/recompute answers at once; wait as msg_docs tells a user to: for a ~/status whose
+        last_recompute is at or after the time the answer names. The node publishes that status
+        after the rebuild's transforms, /tf_static and markers (a CI failure: waiting for the
+        served model instead, a late joiner got the /tf_static of the model before)."""
         response = self.srv(node, Trigger, "recompute")
         assert response.success, response.message
         requested = rebuild_requested_ns(response.message)
-        wait_for(lambda: node.state.stamp_ns >= requested, what="the requested rebuild")
+        self.latest(node, RegistrationStatus, f"/{node.get_name()}/status",
+                    predicate=lambda m: (m.last_recompute.sec * 10**9
+                                         + m.last_recompute.nanosec) >= requested)
         return node.state
 
     def correct(self, node, xyz, frame="tracker"):
