@@ -37,7 +37,7 @@ from typing import Iterable, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .measurement_checks import (MAX_ID_LENGTH, check_age, check_coords, check_id,
+from .measurement_checks import (MAX_ID_LENGTH, check_age, check_coords, check_new_id,
                                  check_record_values, check_stamp)
 from .noise import RepeatStats
 from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSet, Measurement,
@@ -171,7 +171,7 @@ class FiducialAccumulator:
                  destination_xyz: ArrayLike, working_frame: str, destination_frame: str,
                  stamp_s: float, now_s: Optional[float]) -> Measurement:
         if fiducial_id is not None:
-            check_id(fiducial_id)
+            check_new_id(fiducial_id)
         for name, got, want in (("working frame", working_frame, self.working_frame),
                                 ("destination frame", destination_frame,
                                  self.destination_frame)):

@@ -17,6 +17,8 @@ from .validation import MAX_ABS_COORDINATE
 
 #: Longest fiducial id accepted [characters].
 MAX_ID_LENGTH = 256
+#: The character a UTF-8 decoder puts for bytes that are not UTF-8.
+REPLACEMENT_CHARACTER = "\ufffd"
 
 
 def check_id(fiducial_id: object) -> None:
@@ -28,6 +30,38 @@ def check_id(fiducial_id: object) -> None:
         raise RejectedMeasurement("malformed", f"fiducial_id must be at most {MAX_ID_LENGTH} "
                                                f"characters without line breaks, "
                                                f"got {quote(fiducial_id)}")
+
+
+def check_new_id(fiducial_id: object) -> None:
+    """The rule for the given id of a new measurement: :func:`check_id`, and no U+FFFD.
+
+    U+FFFD is what a UTF-8 decoder puts for bytes that are not UTF-8 (rclpy decodes a message's
+    string with ``errors="replace"``), so two different ids sent as such bytes would become one
+    fiducial. Not applied on replay: a journal written before this rule keeps its records.
+    """
+    check_id(fiducial_id)
+    if REPLACEMENT_CHARACTER in fiducial_id:  # type: ignore[operator]
+        raise RejectedMeasurement("malformed", f"fiducial_id is not valid UTF-8 (it holds "
+                                               f"U+FFFD, which a decoder puts for bytes that "
+                                               f"are not UTF-8), got {quote(fiducial_id)}")
+
+
+#: Nanoseconds per second: the ``nanosec`` of a ``builtin_interfaces/Time`` is below it.
+NS_PER_S = 1_000_000_000
+
+
+def stamp_seconds(sec: int, nanosec: int) -> float:
+    """A message stamp (``builtin_interfaces/Time``: ``sec``, ``nanosec``) in seconds.
+
+    :raises RejectedMeasurement: ``malformed`` when ``nanosec`` is not in [0, 10^9): such a
+        stamp is not a time (read as ``sec + nanosec·1e-9`` it would be another time, and
+        pair or conflict with measurements it has nothing to do with).
+    """
+    if not 0 <= nanosec < NS_PER_S:
+        raise RejectedMeasurement("malformed", f"header.stamp.nanosec must be below 10^9 "
+                                               f"(a builtin_interfaces/Time), got {nanosec} "
+                                               f"(sec {sec})")
+    return sec + nanosec * 1e-9
 
 
 def check_stamp(stamp_s: object) -> float:

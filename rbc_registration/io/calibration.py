@@ -27,6 +27,7 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from ..core.constants import INTERPOLATIONS
+from ..core.frames import same_frame_problem
 from ..core.quaternion import (ORTHONORMAL_TOLERANCE, matrix_from_quaternion,
                                quaternion_from_matrix)
 from . import calibration_format as fields
@@ -97,9 +98,9 @@ class Calibration:
     def __post_init__(self) -> None:
         fields.check_frame("parent_frame", self.parent_frame)
         fields.check_frame("child_frame", self.child_frame)
-        if self.parent_frame == self.child_frame:
-            raise ValueError(f"child_frame: must differ from parent_frame, both are "
-                             f"{self.parent_frame!r}")
+        same = same_frame_problem("parent_frame", self.parent_frame, self.child_frame)
+        if same:
+            raise ValueError(f"child_frame: {same}")
         fields.check_int("dimension", self.dimension, minimum=2)
         if self.dimension not in (2, 3):
             raise ValueError(f"dimension: must be 2 or 3, got {self.dimension}")

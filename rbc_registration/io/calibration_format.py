@@ -16,6 +16,8 @@ from typing import Any, Optional, Sequence
 
 import yaml
 
+from ..core.frames import frame_id_problem
+
 FORMAT = "rbc_registration_calibration"
 FORMAT_VERSION = 2
 #: Versions this reader reads: 1 had one ``expected_tre`` (the decision's figure, read as
@@ -90,14 +92,11 @@ def check_text(name: str, value: Any, allow_empty: bool = False) -> str:
 
 
 def check_frame(name: str, value: Any) -> str:
-    """A tf frame id: non-empty, no leading '/' (tf2 refuses it), no whitespace or control
-    characters (so it is one word on a command line)."""
+    """A tf frame id (:func:`rbc_registration.core.frames.frame_id_problem`)."""
     check_text(name, value)
-    if value.startswith("/"):
-        raise ValueError(f"{name}: a tf2 frame id must not start with '/', got {_quote(value)}")
-    if any(c.isspace() or not c.isprintable() for c in value):
-        raise ValueError(f"{name}: must not contain whitespace or control characters, got "
-                         f"{_quote(value)}")
+    problem = frame_id_problem(value)
+    if problem:
+        raise ValueError(f"{name}: {problem}, got {_quote(value)}")
     return value
 
 

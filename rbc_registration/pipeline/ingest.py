@@ -157,6 +157,12 @@ class Ingest:
                             f"journal write failed, not accepted: {self.journal_error}")
         return _Outcome(record)
 
+    def reject(self, exc: RejectedMeasurement) -> None:
+        """Count and log an input rejected before it could be validated as a measurement
+        (e.g. a message whose stamp is not a time)."""
+        with self._lock:
+            self._rejected(self._acc.reject(exc.reason, exc.message))
+
     def take(self, args: PairArgs) -> tuple[Optional[Measurement], str]:
         """One measurement (e.g. ``~/take_sample``): ``(the accepted record, "")`` or
         ``(None, the reason it was not accepted)``."""

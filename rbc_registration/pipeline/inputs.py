@@ -10,7 +10,8 @@ from typing import NamedTuple, Optional
 
 class PairMessage(NamedTuple):
     """A ``FiducialPair`` (``fiducial_id`` may be empty: id assigned by proximity);
-    ``stamp_ns``: the header stamp in whole nanoseconds when known (a bag's), else ``None``."""
+    ``stamp_ns``: the header stamp in whole nanoseconds when known (a bag's), else ``None``;
+    ``stamp_error``: why the header stamp is not a time (then ``stamp_s`` is NaN), else empty."""
 
     log_ns: int
     stamp_s: float
@@ -20,15 +21,18 @@ class PairMessage(NamedTuple):
     destination: tuple[float, float, float]
     destination_frame: str
     stamp_ns: Optional[int] = None
+    stamp_error: str = ""
 
 
 class PointMessage(NamedTuple):
     """A ``PointStamped`` of stream ``"working"`` or ``"destination"``
-    (:data:`~rbc_registration.core.constants.WORKING`, ``DESTINATION``)."""
+    (:data:`~rbc_registration.core.constants.WORKING`, ``DESTINATION``); ``stamp_error`` as
+    in :class:`PairMessage`."""
 
     log_ns: int
     stream: str
     xyz: tuple[float, float, float]
     frame_id: str
     stamp_s: float
+    stamp_error: str = ""
 

@@ -17,6 +17,7 @@ import numpy as np
 from ..core.accumulator import FiducialAccumulator, FiducialSet
 from ..core.model import RbcModel
 from ..core.pairing import StampPairer
+from ..core.records import RejectedMeasurement, quote
 from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
 from .settings import Settings
@@ -102,7 +103,11 @@ def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
     log = _Log()
     ingest = Ingest(acc, StampPairer(s.pair_slop, s.point_buffer), None, log)
     for m in inputs:
-        if isinstance(m, PairMessage):
+        if m.stamp_error:        # rejected as the node rejects the message
+            what = (f"FiducialPair {quote(m.fiducial_id)}" if isinstance(m, PairMessage)
+                    else f"{m.stream} point")
+            ingest.reject(RejectedMeasurement("malformed", f"{what}: {m.stamp_error}"))
+        elif isinstance(m, PairMessage):
             ingest.measurement(PairArgs(m.fiducial_id or None, m.working, m.destination,
                                         m.working_frame, m.destination_frame, m.stamp_s))
         else:

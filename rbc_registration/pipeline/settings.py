@@ -14,6 +14,8 @@ from typing import Any, Mapping, NamedTuple, Optional
 
 from ..core.constants import (DECISION_MODES, INTERPOLATIONS, MAX_RESTORATION_STEPS,
                                RESTORATIONS, DecisionMode, rho_thresholds_error)
+from ..core.frames import frame_id_problem, same_frame_problem
+from ..core.records import quote
 
 
 class Spec(NamedTuple):
@@ -272,12 +274,11 @@ def validate_one(name: str, value: Any) -> Optional[str]:
             return f"{name} must be a string, got {value!r}"
         if spec.choices and value not in spec.choices:
             return f"{name} must be one of {', '.join(spec.choices)}; got {value!r}"
-        if name.endswith("_frame") and (not value or value.startswith("/") or " " in value):
-            return f"{name} must be a non-empty frame id without a leading '/' or spaces, " \
-                   f"got {value!r}"
-        if name.startswith("sample_tf_") and (value.startswith("/") or " " in value):
-            return f"{name} must be a frame id without a leading '/' or spaces (or empty), " \
-                   f"got {value!r}"
+        frame = name.endswith("_frame") or (name.startswith("sample_tf_") and value != "")
+        problem = frame_id_problem(value) if frame else None
+        if problem:
+            empty = " (or empty)" if name.startswith("sample_tf_") else ""
+            return f"{name} is a tf frame id{empty}: it {problem}, got {quote(value)}"
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return f"{name} must be a number, got {value!r}"
@@ -299,6 +300,23 @@ def validate(values: Mapping[str, Any]) -> Optional[str]:
         error = validate_one(name, value)
         if error:
             return error
+
+    def get(name: str) -> Any:
+        return values.get(name, SPECS[name].default)
+
+    same = same_frame_problem("destination_frame", get("destination_frame"),
+                              get("working_frame"))
+    if same:
+        return f"working_frame {same}"
+    if get("sample_tf_child"):
+        parent = "sample_tf_parent" if get("sample_tf_parent") else \
+            "sample_tf_parent (empty: destination_frame)"
+        same = same_frame_problem(parent, get("sample_tf_parent") or get("destination_frame"),
+                                  get("sample_tf_child"),
+                                  "a tf sample's destination point is the origin of "
+                                  "sample_tf_child in sample_tf_parent: in itself always 0")
+        if same:
+            return f"sample_tf_child {same}"
     if values.get("sigma", 0.0) > 0 and values.get("sigma_axis", 0.0) > 0:
         return (f"give sigma or sigma_axis, not both (sigma {values['sigma']!r}, sigma_axis "
                 f"{values['sigma_axis']!r}; 0 = unknown)")

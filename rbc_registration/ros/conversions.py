@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from rbc_registration_interfaces.msg import FiducialResidual, TargetCorrection
 
 from ..core.constants import UNCORRECTED
+from ..core.measurement_checks import stamp_seconds
 from ..core.records import quote
 from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.ingest import PairArgs
@@ -24,8 +25,12 @@ from . import fast_msgs
 
 
 def stamp_to_seconds(stamp: Time) -> float:
-    """``builtin_interfaces/Time`` -> seconds (float)."""
-    return stamp.sec + stamp.nanosec * 1e-9
+    """``builtin_interfaces/Time`` -> seconds (float).
+
+    :raises RejectedMeasurement: ``malformed`` when ``nanosec`` is 10^9 or more
+        (:func:`~rbc_registration.core.measurement_checks.stamp_seconds`).
+    """
+    return stamp_seconds(stamp.sec, stamp.nanosec)
 
 
 def nanoseconds_to_stamp(ns: int) -> Time:

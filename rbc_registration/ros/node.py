@@ -32,6 +32,7 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetF
 
 from ..core.accumulator import FiducialAccumulator
 from ..core.pairing import DESTINATION, WORKING, StampPairer
+from ..core.records import RejectedMeasurement, quote
 from ..pipeline.files import StateDirLock
 from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
@@ -200,15 +201,26 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
 
     # -- inputs -------------------------------------------------------------------------------
     def _on_fiducial_pair(self, msg: FiducialPair) -> None:
-        if self._ingest.measurement(conv.fiducial_pair_to_args(msg)):
+        try:
+            args = conv.fiducial_pair_to_args(msg)
+        except RejectedMeasurement as exc:      # its stamp is not a time
+            self._ingest.reject(RejectedMeasurement(
+                exc.reason, f"FiducialPair {quote(msg.fiducial_id)}: {exc.message}"))
+            return
+        if self._ingest.measurement(args):
             self._worker.notify()
 
     def _on_point(self, stream: str, msg: PointStamped) -> None:
         self._samples.update(stream, msg)  # the latest point, for ~/take_sample
         if self._settings.point_mode != "pair":
             return
+        try:
+            point = conv.point_stamped_to_tuple(msg)
+        except RejectedMeasurement as exc:      # its stamp is not a time
+            self._ingest.reject(RejectedMeasurement(exc.reason, f"{stream} point: {exc.message}"))
+            return
         recorded: list = []    # accepted, or a duplicate of a recorded measurement
-        pairs = self._ingest.point(stream, *conv.point_stamped_to_tuple(msg), recorded=recorded)
+        pairs = self._ingest.point(stream, *point, recorded=recorded)
         if recorded:
             self._samples.mark_paired(recorded)
         if pairs:

@@ -14,6 +14,7 @@ from geometry_msgs.msg import PointStamped
 from rbc_registration_interfaces.msg import FiducialPair
 
 from ..core.pairing import DESTINATION, WORKING
+from ..core.records import RejectedMeasurement
 from ..pipeline.ingest import PairArgs
 from ..pipeline.settings import Settings
 from . import conversions as conv
@@ -145,8 +146,11 @@ class SampleTaker:
         errors = [p for p in (working, destination) if isinstance(p, str)]
         if errors:
             return None, "; ".join(errors), None
-        (w, w_frame, stamp), (d, d_frame, _) = (conv.point_stamped_to_tuple(working),
-                                                conv.point_stamped_to_tuple(destination))
+        try:
+            (w, w_frame, stamp), (d, d_frame, _) = (conv.point_stamped_to_tuple(working),
+                                                    conv.point_stamped_to_tuple(destination))
+        except RejectedMeasurement as exc:      # a stamp that is not a time
+            return None, f"rejected ({exc.reason}): {exc.message}", None
         return PairArgs(fiducial_id or None, w, d, w_frame, d_frame, stamp), "", latest
 
 

@@ -380,3 +380,30 @@ def test_points_whose_float_hashes_collide_are_still_other_points():
     with pytest.raises(RejectedMeasurement) as caught:
         acc.add("a", [-2.0, 0, 0], [1, 1, 1], stamp_s=5.0)
     assert caught.value.reason == "conflict"
+
+
+def test_an_id_that_was_not_utf8_is_malformed_live_but_kept_on_replay():
+    """A review: rclpy decodes a non-UTF-8 id to U+FFFD characters, so two holes sent as
+    different invalid bytes became one fiducial (averaged, or one rejected as an outlier)."""
+    from rbc_registration.core.accumulator import Measurement
+    from rbc_registration.core.records import RejectedMeasurement
+
+    acc = FiducialAccumulator(3, "tracker", "world", 0.005, 0.0)
+    with pytest.raises(RejectedMeasurement, match="fiducial_id is not valid UTF-8") as info:
+        acc.prepare("\ufffd\ufffdH", (0, 0, 0), (1, 1, 1), "tracker", "world", 1.0)
+    assert info.value.reason == "malformed" and acc.rejected["malformed"] == 1
+    # a journal written before the rule keeps its records
+    acc.check_record(Measurement("\ufffd", (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, False))
+
+
+def test_a_stamp_whose_nanosec_is_not_below_a_second_is_malformed():
+    """A review: (100 s, 4e9 ns) was read as 104 s and paired or conflicted with other
+    measurements."""
+    from rbc_registration.core.measurement_checks import stamp_seconds
+    from rbc_registration.core.records import RejectedMeasurement
+
+    assert stamp_seconds(100, 999_999_999) == pytest.approx(100.999999999)
+    for nanosec in (1_000_000_000, 4_000_000_000):
+        with pytest.raises(RejectedMeasurement, match="nanosec must be below 10") as info:
+            stamp_seconds(100, nanosec)
+        assert info.value.reason == "malformed"

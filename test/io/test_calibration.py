@@ -222,7 +222,7 @@ RULES = [
     ({"rotation.w": 2.0}, "rotation: not a unit quaternion: its norm is"),
     ({"parent_frame": ""}, "parent_frame: must not be empty"),
     ({"child_frame": "world"}, "child_frame: must differ from parent_frame, both are 'world'"),
-    ({"child_frame": "/tracker"}, "child_frame: a tf2 frame id must not start with '/', "
+    ({"child_frame": "/tracker"}, "child_frame: must not start with '/' (tf2 refuses it), "
                                   "got '/tracker'"),
     ({"parent_frame": "robot base"}, "parent_frame: must not contain whitespace or control "
                                      "characters, got 'robot base'"),

@@ -38,8 +38,11 @@ def test_defaults_are_valid_and_cover_every_setting():
     ("merge_radius", 0.0, r"merge_radius must be in \(0"),
     ("outlier_distance", -0.1, "outlier_distance must be in"),
     ("debounce_period", 61.0, "debounce_period must be in"),
-    ("working_frame", "", "working_frame must be a non-empty frame id"),
-    ("destination_frame", "/world", "without a leading '/'"),
+    ("working_frame", "", "working_frame is a tf frame id: it must not be empty"),
+    ("destination_frame", "/world", "must not start with '/'"),
+    ("sample_tf_child", "tcp\nframe", "sample_tf_child is a tf frame id .or empty.: it must not "
+                                       "contain whitespace or control characters"),
+    ("working_frame", "x" * 1001, "must be at most 1000 characters"),
     ("journal_fsync", 1, "journal_fsync must be a bool"),
     ("state_dir", 3, "state_dir must be a string"),
     ("sigma", True, "sigma must be a number"),
@@ -95,3 +98,18 @@ def test_config_file_lists_every_parameter_with_a_valid_value():
     for name, value in values.items():
         assert type(value) is type(SPECS[name].default), name   # ROS types must match
     assert settings.state_dir
+
+
+@pytest.mark.parametrize("values, message", [
+    ({"working_frame": "world", "destination_frame": "world"},
+     "working_frame must differ from destination_frame, both are 'world'"),
+    ({"sample_tf_child": "world"},
+     r"sample_tf_child must differ from sample_tf_parent \(empty: destination_frame\)"),
+    ({"sample_tf_parent": "base", "sample_tf_child": "base"},
+     "sample_tf_child must differ from sample_tf_parent, both are 'base'"),
+])
+def test_a_frame_registered_into_itself_is_refused(values, message):
+    """A review: working_frame == destination_frame started and latched a world -> world
+    transform on /tf_static, which tf2 drops."""
+    with pytest.raises(ValueError, match=message):
+        Settings.from_mapping(values)

@@ -69,6 +69,14 @@ BAD_PARAMETERS = [
     ("debounce_period-range", "debounce_period", 61.0, "Parameter debounce_period out of range"),
     ("tf_broadcast-choice", "tf_broadcast", "both",
      "tf_broadcast must be one of corrected, uncorrected, none; got 'both'"),
+    ("sample_tf_parent-slash", "sample_tf_parent", "/base_link",
+     "sample_tf_parent is a tf frame id (or empty): it must not start with '/' (tf2 refuses "
+     "it), got '/base_link'"),
+    ("sample_tf_child-space", "sample_tf_child", "tool 0",
+     "sample_tf_child is a tf frame id (or empty): it must not contain whitespace"),
+    ("sample_tf_child-same", "sample_tf_child", "world",
+     "sample_tf_child must differ from sample_tf_parent (empty: destination_frame), both are "
+     "'world'"),
     ("marker_scale-zero", "marker_scale", 0.0, "marker_scale must be in (0, 10], got 0.0"),
     ("marker_arrow_gain-range", "marker_arrow_gain", -1.0,
      "Parameter marker_arrow_gain out of range"),
@@ -264,6 +272,17 @@ class TestNodeBadInput(RosTestBase):
         self.rejected("conflict")
         assert "other points than an accepted measurement with that stamp" in \
             self.logged("conflict")
+        self.assert_unharmed(1)
+
+    def test_a_stamp_with_nanosec_of_a_second_or_more_is_malformed(self):
+        """builtin_interfaces/Time.nanosec is below 1e9: 4e9 is not 'four seconds later' (the
+        pair would be taken at another time than the sensor's), it is a broken stamp."""
+        msg = pair_msg(self.cell, 3, stamp_s=103.0)
+        msg.header.stamp.nanosec = 4_000_000_000
+        self.publisher(FiducialPair, "fiducial_pairs").publish(msg)
+        self.rejected("malformed")
+        assert ("header.stamp.nanosec must be below 10^9 (a builtin_interfaces/Time), got "
+                "4000000000") in self.logged("nanosec")
         self.assert_unharmed(1)
 
     def test_1mb_fiducial_id(self):

@@ -105,6 +105,9 @@ def test_separate_client_process_streams_pairs_and_corrects_targets(tmp_path):
 
 @pytest.mark.parametrize("params, reason", [
     ({"dimension": 4}, "cannot start"),
+    # tf2 drops a transform of a frame into itself: the node would latch a /tf_static no one gets
+    ({"working_frame": "world", "destination_frame": "world"},
+     "cannot start: working_frame must differ from destination_frame, both are 'world'"),
     # -p decision:=off: YAML makes it a boolean; the reason says to quote it
     ({"decision": "off"}, "cannot start: Wrong parameter type: decision must be of type string, "
                           "got bool False (YAML reads an unquoted on, off"),

@@ -7,6 +7,7 @@ definition) raises :class:`~.records.BagError` with a message naming the bag and
 
 from __future__ import annotations
 
+import math
 import sqlite3
 import struct
 from contextlib import contextmanager
@@ -18,6 +19,8 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import TypesysError
 
 from ...core.constants import DESTINATION, WORKING
+from ...core.measurement_checks import stamp_seconds
+from ...core.records import RejectedMeasurement
 from ..progress import Progress
 from .mcap_crc import check_mcap, mcap_files
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
@@ -83,8 +86,13 @@ def topic_types(reader: Reader) -> dict[str, str]:
     return out
 
 
-def _stamp(header: Any) -> float:
-    return header.stamp.sec + header.stamp.nanosec * 1e-9
+def _stamp(header: Any) -> tuple[float, str]:
+    """The header stamp [s] and ``""``, or NaN and why it is not a time (the message is
+    rejected as the node rejects it)."""
+    try:
+        return stamp_seconds(int(header.stamp.sec), int(header.stamp.nanosec)), ""
+    except RejectedMeasurement as exc:
+        return math.nan, exc.message
 
 
 def _stamp_ns(header: Any) -> int:
@@ -149,15 +157,16 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                                    f"as {conn.msgtype}: {_describe(exc)}") from None
                 counts[conn.topic] += 1
                 if conn.topic in (topics.fiducial_pairs, topics.targets):
-                    pair = PairMessage(log_ns, _stamp(msg.header), msg.fiducial_id,
+                    stamp, stamp_error = _stamp(msg.header)
+                    pair = PairMessage(log_ns, stamp, msg.fiducial_id,
                                        _xyz(msg.working_point), msg.header.frame_id,
                                        _xyz(msg.destination_point), msg.destination_frame_id,
-                                       _stamp_ns(msg.header))
+                                       _stamp_ns(msg.header), stamp_error)
                     (ins if conn.topic == topics.fiducial_pairs else tgts).append(pair)
                 else:
                     stream = WORKING if conn.topic == topics.working_point else DESTINATION
                     ins.append(PointMessage(log_ns, stream, _xyz(msg.point),
-                                            msg.header.frame_id, _stamp(msg.header)))
+                                            msg.header.frame_id, *_stamp(msg.header)))
                 bar.update()
         except BagError:
             raise                       # already names the bag and the message
