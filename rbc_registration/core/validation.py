@@ -59,16 +59,24 @@ def as_point_pairs(working: ArrayLike, destination: ArrayLike, dim: Optional[int
     return x, y
 
 
+#: The spread [the points' unit] below which points are coincident or collinear, wherever the
+#: rounding of their coordinates is smaller (per point, in the root-sum-square of the spread).
+SPREAD_FLOOR = 1e-9
+
+
 def check_spread(points: NDArray[np.float64], name: str = "points") -> None:
     """Raise ``ValueError`` when the points cannot fix a rigid registration.
 
-    2D needs two distinct points; 3D needs three points that are not collinear.
+    2D needs two distinct points; 3D needs three points that are not collinear. The spread is
+    compared with :data:`SPREAD_FLOOR`, or with the rounding of the coordinates
+    (:func:`rounding`) where that is larger: a cell far from its frame's origin (geodetic
+    coordinates, 6.4e6 m) keeps the same shapes as one at the origin (a 1e-9 relative
+    tolerance called a 2 m x 1 cm rail there collinear).
     """
     d = points.shape[1]
     centred = points - points.mean(axis=0)
     s = np.linalg.svd(centred, compute_uv=False) if len(points) else np.zeros(1)
-    scale = max(float(np.abs(points).max(initial=0.0)), 1.0)
-    tol = 1e-9 * scale * np.sqrt(max(len(points), 1))
+    tol = np.sqrt(max(len(points), 1)) * max(SPREAD_FLOOR, rounding(points) if len(points) else 0)
     if s[0] <= tol:
         raise ValueError(f"{name} are coincident: a registration needs distinct points")
     if d == 3 and (len(s) < 2 or s[1] <= tol):

@@ -26,13 +26,18 @@ class ParametersMixin:
     _worker: Any
     _publish_tf: Any
 
-    def _apply_descriptor(self, parameter: Parameter, *args: Any, **kwargs: Any) -> Any:
+    def _apply_descriptor(self, parameter: Parameter, descriptor: Any = None,
+                          *args: Any, **kwargs: Any) -> Any:
         """rclpy's type check, with a reason naming the parameter and the types (rclpy 3.11+
-        prints the type codes only: "expected '3' got '2'")."""
-        result = super()._apply_descriptor(parameter, *args, **kwargs)
+        prints the type codes only: "expected '3' got '2'"), for rclpy's own parameters
+        (``use_sim_time``) too."""
+        result = super()._apply_descriptor(parameter, descriptor, *args, **kwargs)
         if not result.successful and result.reason.startswith("Wrong parameter type"):
+            if descriptor is None:
+                descriptor = self.describe_parameter(parameter.name)
             result.reason = params.type_error(parameter.name, parameter.type_.name,
-                                              parameter.value)
+                                              parameter.value,
+                                              Parameter.Type(descriptor.type).name)
         return result
 
     def _check_undeclared_parameters(self, parameter_list: list[Parameter]) -> None:

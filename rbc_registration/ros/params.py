@@ -34,20 +34,30 @@ def unknown_overrides(names: Iterable[str]) -> str:
 ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string"}
 
 
-def type_error(name: str, got_type: str, value: Any) -> str:
+def type_error(name: str, got_type: str, value: Any, declared_type: str = "") -> str:
     """The reason for a value of the wrong ROS type, e.g. ``sigma:=1`` (an integer) for a double.
 
+    ``got_type`` and ``declared_type`` are ``rclpy.Parameter.Type`` names (``"INTEGER"``); the
+    type wanted is the node's :data:`SPECS` for its own parameters, else ``declared_type`` (the
+    declared type of a parameter rclpy declares, e.g. ``use_sim_time``: bool).
     Starts with "Wrong parameter type" as rclpy's own reason does (rclpy tests that prefix).
     """
     spec = SPECS.get(name)
-    want = ROS_TYPE_NAMES.get(type(spec.default), "?") if spec is not None else "?"
+    if spec is not None:
+        want = ROS_TYPE_NAMES.get(type(spec.default), "")
+    else:
+        want = declared_type.lower().replace("_", " ")
+    got = f"got {got_type.lower().replace('_', ' ')} {value!r}"
+    if not want or want == "not set":
+        return f"Wrong parameter type: {name} does not take this type, {got}"
     hint = f" (write {float(value)!r})" if want == "double" and isinstance(value, int) \
         and not isinstance(value, bool) else ""
     if want == "string" and isinstance(value, bool):
         hint = (" (YAML reads an unquoted on, off, yes, no, true or false as a boolean: quote "
                 f"it, e.g. {name}:=\"'off'\" on the command line or {name}: 'off' in a file)")
-    return (f"Wrong parameter type: {name} must be of type {want}, got {got_type.lower()} "
-            f"{value!r}{hint}")
+    if want == "bool" and isinstance(value, str):
+        hint = f" (write {name}:=true or {name}:=false, unquoted)"
+    return f"Wrong parameter type: {name} must be of type {want}, {got}{hint}"
 
 
 def declare(node: Any) -> Settings:

@@ -87,3 +87,23 @@ def test_bad_weights(w, message):
     x = np.random.default_rng(0).normal(size=(4, 3))
     with pytest.raises(ValueError, match=message):
         rigid_fit(x, x, w)
+
+
+@pytest.mark.parametrize("offset", [0.0, 6.4e6, 1e9])
+def test_a_narrow_cell_far_from_the_origin_is_the_same_cell(offset):
+    """A 2 m x 4 mm rail registers alike at the origin and in geodetic coordinates (6.4e6 m;
+    a 1e-9 relative tolerance called it collinear there), and a collinear or coincident set is
+    still refused there: the tolerance follows the coordinates' rounding, not a fixed fraction."""
+    rng = np.random.default_rng(8)
+    rail = rng.uniform([-1, -2e-3, -2e-3], [1, 2e-3, 2e-3], (20, 3))
+    r = Rotation.from_rotvec([0.1, -0.3, 0.5]).as_matrix()
+    t = np.array([0.3, -0.2, 0.1])
+    fit = rigid_fit(rail + offset, (rail @ r.T + t) + offset)
+    # the coordinates' rounding over the rail's half-width: what no fit can do better than
+    rounding_angle = np.finfo(float).eps * offset / 2e-3
+    np.testing.assert_allclose(fit.rotation, r, atol=1e-12 + rounding_angle)
+    line = np.outer(np.linspace(-1, 1, 20), [1.0, 0.5, 0.2]) + offset
+    with pytest.raises(ValueError, match="collinear"):
+        rigid_fit(line, line)
+    with pytest.raises(ValueError, match="coincident"):
+        rigid_fit(np.full((5, 3), offset + 1.0), np.full((5, 3), offset + 1.0))

@@ -69,6 +69,9 @@ BAD_PARAMETERS = [
     ("debounce_period-range", "debounce_period", 61.0, "Parameter debounce_period out of range"),
     ("tf_broadcast-choice", "tf_broadcast", "both",
      "tf_broadcast must be one of corrected, uncorrected, none; got 'both'"),
+    ("use_sim_time-type", "use_sim_time", "true",
+     "Wrong parameter type: use_sim_time must be of type bool, got string 'true' (write "
+     "use_sim_time:=true or use_sim_time:=false, unquoted)"),
     ("sample_tf_parent-slash", "sample_tf_parent", "/base_link",
      "sample_tf_parent is a tf frame id (or empty): it must not start with '/' (tf2 refuses "
      "it), got '/base_link'"),

@@ -35,6 +35,20 @@ def test_a_wrong_type_names_the_parameter_and_both_types():
         "interpolation:=\"'off'\" on the command line or interpolation: 'off' in a file)")
 
 
+def test_a_wrong_type_of_a_parameter_rclpy_declares_names_its_declared_type():
+    """A review: use_sim_time:=1 was refused as "must be of type ?"."""
+    assert params.type_error("use_sim_time", "INTEGER", 1, "BOOL") == (
+        "Wrong parameter type: use_sim_time must be of type bool, got integer 1")
+    assert params.type_error("use_sim_time", "STRING", "yes", "BOOL") == (
+        "Wrong parameter type: use_sim_time must be of type bool, got string 'yes' (write "
+        "use_sim_time:=true or use_sim_time:=false, unquoted)")
+    assert params.type_error("x", "DOUBLE_ARRAY", [1.0], "NOT_SET") == (
+        "Wrong parameter type: x does not take this type, got double array [1.0]")
+    # the node's own parameters keep their SPECS type whatever the descriptor says
+    assert params.type_error("sigma", "INTEGER", 1, "NOT_SET").startswith(
+        "Wrong parameter type: sigma must be of type double, got integer 1")
+
+
 def test_start_up_overrides_the_node_does_not_have_are_named_with_the_closest_parameter():
     """A review: -p decison:="'off'" started the node with the decision cv, without a word."""
     assert params.unknown_overrides(["decision", "use_sim_time", "qos_overrides./tf.depth"]) == ""
