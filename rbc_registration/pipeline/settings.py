@@ -317,6 +317,11 @@ def validate(values: Mapping[str, Any]) -> Optional[str]:
                                   "sample_tf_child in sample_tf_parent: in itself always 0")
         if same:
             return f"sample_tf_child {same}"
+        if get("sample_tf_child") == get("working_frame"):
+            return (f"sample_tf_child must not be working_frame {get('working_frame')!r}: a tf "
+                    f"sample's destination point would be the working frame's origin, which is "
+                    f"the registration itself (this node's /tf_static), not the measured point; "
+                    f"name the frame carrying the target, e.g. the robot's tool frame")
     if values.get("sigma", 0.0) > 0 and values.get("sigma_axis", 0.0) > 0:
         return (f"give sigma or sigma_axis, not both (sigma {values['sigma']!r}, sigma_axis "
                 f"{values['sigma_axis']!r}; 0 = unknown)")

@@ -107,6 +107,9 @@ def test_config_file_lists_every_parameter_with_a_valid_value():
      r"sample_tf_child must differ from sample_tf_parent \(empty: destination_frame\)"),
     ({"sample_tf_parent": "base", "sample_tf_child": "base"},
      "sample_tf_child must differ from sample_tf_parent, both are 'base'"),
+    ({"sample_tf_child": "tracker"},
+     "sample_tf_child must not be working_frame 'tracker': a tf sample's destination point "
+     "would be the working frame's origin, which is the registration itself"),
 ])
 def test_a_frame_registered_into_itself_is_refused(values, message):
     """A review: working_frame == destination_frame started and latched a world -> world
