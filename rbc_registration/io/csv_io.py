@@ -150,6 +150,8 @@ def _number(p: PathLike, line: int, column: str, text: Optional[str]) -> float:
     if text is None or text == "":
         raise CsvError(f"{p}: row {line}: column {column} is empty")
     try:
+        if "_" in text:   # Python's float() reads 1_000 as 1000; no spreadsheet writes it
+            raise ValueError(text)
         value = float(text)
     except ValueError:
         raise CsvError(f"{p}: row {line}: column {column} is not a number: {text!r}") from None
@@ -241,20 +243,25 @@ def _checked_repeats(path: PathLike, fid: str, group: list[tuple[int, list[float
     (w_limit, w_name), (d_limit, d_name) = limits
     work: list[list[float]] = []
     dest: list[list[float]] = []
+    w_sum = [0.0] * len(group[0][1]) if group else []   # running sums: linear in the repeats
+    d_sum = [0.0] * len(group[0][2]) if group else []
     for line, w, t in group:
         n = len(work)
         if n:
-            far = repeat_outlier(fid, "destination", t, np.mean(dest, axis=0), n, d_limit, d_name)
+            far = repeat_outlier(fid, "destination", t, [v / n for v in d_sum], n, d_limit,
+                                 d_name)
             if far:
                 raise CsvError(f"{path}: id {fid!r} (first at row {group[0][0]}) has conflicting "
                                f"destination points: row {line}: {far}")
-            far = repeat_outlier(fid, "working", w, np.mean(work, axis=0), n, w_limit, w_name)
+            far = repeat_outlier(fid, "working", w, [v / n for v in w_sum], n, w_limit, w_name)
             if far:
                 notes.append(f"{path}: row {line}: {far}: row ignored (as the node rejects an "
                              "outlier)")
                 continue
         work.append(w)
         dest.append(t)
+        w_sum = [a + b for a, b in zip(w_sum, w)]
+        d_sum = [a + b for a, b in zip(d_sum, t)]
     return work, dest
 
 

@@ -79,9 +79,15 @@ def first_conflict(ids: Sequence[str], frames: Sequence[tuple[str, ArrayLike, fl
     for name, points, limit, limit_name in frames:
         values = np.asarray(points, dtype=np.float64)
         for key, index in rows.items():
+            if len(index) < 2:
+                continue
+            # the mean of the rows before each row, from running sums: linear in the repeats
+            own = values[index]
+            before = (np.cumsum(own, axis=0)[:-1] / np.arange(1, len(index))[:, None]).tolist()
+            own_rows = own.tolist()
             for i in range(1, len(index)):
-                far = repeat_outlier(key, name, values[index[i]],
-                                     values[index[:i]].mean(axis=0), i, limit, limit_name, kind)
+                far = repeat_outlier(key, name, own_rows[i], before[i - 1], i, limit,
+                                     limit_name, kind)
                 if far:
                     return Conflict(index[i], index[0], name, far)
     return None

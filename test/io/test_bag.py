@@ -1,6 +1,7 @@
 """rosbag2 reading and writing (rbc_registration.io.bag): round trips through both storages, and a
 clear BagError (never a traceback) for every kind of bad bag. No rclpy."""
 
+import os
 import shutil
 from pathlib import Path
 
@@ -136,6 +137,31 @@ def test_truncated_bag(tmp_path, bags, storage, fraction):
     for path in (bag, f):
         with pytest.raises(BagError, match="truncated or corrupt"):
             read_bag(path, progress=False)
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_fifo_or_directory_in_place_of_a_bag_file_is_refused_not_waited_on(tmp_path, bags,
+                                                                          storage):
+    """A review: a FIFO as the storage file (or a single-file bag) blocked open() for ever, a
+    FIFO metadata.yaml read as 'no metadata.yaml', a directory as 'disk I/O error'."""
+    bag = tmp_path / "fifo"
+    shutil.copytree(bags[storage], bag)
+    f = storage_file(bag)
+    f.unlink()
+    os.mkfifo(f)
+    for path in (bag, f):
+        with pytest.raises(BagError, match=f"{f.name} is a FIFO, not a regular file: refused"):
+            read_bag(path, progress=False)
+    f.unlink()
+    f.mkdir()
+    with pytest.raises(BagError, match=f"{f.name} is a directory, not a regular file"):
+        read_bag(bag, progress=False)
+    meta = tmp_path / "fifo_meta"
+    shutil.copytree(bags[storage], meta)
+    (meta / "metadata.yaml").unlink()
+    os.mkfifo(meta / "metadata.yaml")
+    with pytest.raises(BagError, match="metadata.yaml is a FIFO, not a regular file: refused"):
+        read_bag(meta, progress=False)
 
 
 def test_corrupt_message_payload(tmp_path):

@@ -130,6 +130,8 @@ def test_dim3_needs_z(tmp_path):
     ("id,wx,wy\nt,1,2\n", "missing column.*wz"),
     ("id,wx,wy,wz,dx,dy\nt,1,2,3,1,2\n", "truth columns incomplete"),
     ("id,wx,wy,wz\nt,1,two,3\n", "column wy is not a number"),
+    # a mistyped decimal point: Python's float() reads 341_511542 as 341511542
+    ("id,wx,wy,wz\nt,1,341_511542,3\n", "row 2: column wy is not a number: '341_511542'"),
 ])
 def test_bad_target_files(tmp_path, text, message):
     with pytest.raises(CsvError, match=message):

@@ -60,19 +60,26 @@ DECOMPRESSORS: dict[str, Callable[[], Callable[[bytes, int], bytes]]] = {
     "": lambda: lambda data, _size: data, "zstd": _zstd, "lz4": _lz4}
 
 
-def mcap_files(path: Path) -> list[Path]:
-    """The mcap files of a bag: ``path`` itself, or the ``.mcap`` files its ``metadata.yaml``
-    lists (``relative_file_paths``; another file in the directory is not the bag's). A
-    metadata file that cannot be read gives none: opening the bag then says what is wrong."""
+def storage_files(path: Path) -> list[Path]:
+    """The storage files of a bag: ``path`` itself, or the files its ``metadata.yaml`` lists
+    (``relative_file_paths``, whether they exist or not). A metadata file that cannot be read
+    gives none: opening the bag then says what is wrong."""
     if not path.is_dir():
-        return [path] if path.suffix == ".mcap" else []
+        return [path]
+    if not (path / "metadata.yaml").is_file():
+        return []                               # a FIFO there would block read_text
     try:
         info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
         names = [str(name) for name in info["relative_file_paths"]]
     except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
         return []
-    return [path / name for name in names
-            if name.endswith(".mcap") and (path / name).is_file()]
+    return [path / name for name in names]
+
+
+def mcap_files(path: Path) -> list[Path]:
+    """The mcap files of a bag: ``path`` itself, or the ``.mcap`` files its ``metadata.yaml``
+    lists (another file in the directory is not the bag's; :func:`storage_files`)."""
+    return [f for f in storage_files(path) if f.suffix == ".mcap" and f.is_file()]
 
 
 def check_mcap(path: Path) -> None:

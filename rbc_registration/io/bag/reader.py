@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import sqlite3
 import struct
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator, Optional, Sequence, Union
@@ -21,8 +22,9 @@ from rosbags.typesys import TypesysError
 from ...core.constants import DESTINATION, WORKING
 from ...core.measurement_checks import stamp_seconds
 from ...core.records import RejectedMeasurement
+from ...pipeline.files import NotARegularFile, check_input_file
 from ..progress import Progress
-from .mcap_crc import check_mcap, mcap_files
+from .mcap_crc import check_mcap, mcap_files, storage_files
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
 from .typestore import check_definitions, make_typestore
@@ -50,8 +52,16 @@ def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
     p = Path(path)
     if not p.exists():
         raise BagError(f"bag {p}: no such file or directory")
-    if p.is_dir() and not (p / "metadata.yaml").is_file():
+    if p.is_dir() and not (p / "metadata.yaml").exists():
         raise BagError(f"bag {p}: not a rosbag2 directory (no metadata.yaml)")
+    # a FIFO (or a device) as the metadata or a storage file would block open() for ever
+    for f in ([p / "metadata.yaml"] if p.is_dir() else []) + storage_files(p):
+        try:
+            check_input_file(str(f), sys.maxsize)
+        except NotARegularFile as exc:
+            raise BagError(f"bag {p}: {exc}") from None
+        except OSError:
+            pass                        # missing or unreadable: opening it below says so
     for f in mcap_files(p):
         try:
             check_mcap(f)
