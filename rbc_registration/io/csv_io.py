@@ -47,7 +47,8 @@ class FiducialTable:
     working_repeats: tuple[NDArray[np.float64], ...]
     destination_repeats: tuple[NDArray[np.float64], ...]
     dimension: int
-    #: One line per row that was ignored (a working-frame repeat far from its siblings).
+    #: One line per row that was ignored (a working-frame repeat far from its siblings), and one
+    #: for the rows dropped as copies of an earlier row of their id.
     notes: tuple[str, ...] = ()
 
     @property
@@ -209,12 +210,39 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
     limits = _repeat_limits([[g[0][1] for g in groups.values()],
                              [g[0][2] for g in groups.values()]], outlier_distance)
     notes: list[str] = []
+    copies = _drop_copies(groups)
+    if copies:
+        shown = ", ".join(f"row {line} = row {first}" for line, first in copies[:3])
+        more = f", and {len(copies) - 3} more" if len(copies) > 3 else ""
+        notes.append(f"{path}: {len(copies)} row(s) repeat an earlier row of their id in every "
+                     f"coordinate ({shown}{more}): dropped as copies, not counted as repeated "
+                     "measurements (a file pasted twice? two measurements of a point differ in "
+                     "their last digits; copies would make sigma too small)")
     work, dest = [], []
     for fid, group in groups.items():
         w, t = _checked_repeats(path, fid, group, limits, notes)
         work.append(np.array(w))
         dest.append(np.array(t))
     return FiducialTable(tuple(groups), tuple(work), tuple(dest), d, tuple(notes))
+
+
+def _drop_copies(groups: dict[str, list[tuple[int, list[float], list[float]]]]
+                 ) -> list[tuple[int, int]]:
+    """Remove, in place, each row equal to an earlier row of its id in every coordinate (a
+    copy: the CSV form of the accumulator's ``duplicate``); return (row, the row it copies)."""
+    copies = []
+    for fid, group in groups.items():
+        first: dict[tuple[float, ...], int] = {}
+        kept = []
+        for line, w, t in group:
+            key = (*w, *t)
+            if key in first:
+                copies.append((line, first[key]))
+            else:
+                first[key] = line
+                kept.append((line, w, t))
+        groups[fid] = kept
+    return sorted(copies)
 
 
 def _repeat_limits(first_rows: list[list[list[float]]], outlier_distance: Optional[float],

@@ -12,6 +12,7 @@ import pytest
 from rbc_registration.core import ModelConfig, build_model, leave_one_out, target_errors
 from rbc_registration.core.synthetic import make_cell
 from rbc_registration.io.csv_io import write_fiducials, write_targets
+from rbc_registration.io.report import format_report, model_report
 
 
 def run(*args, check=True):
@@ -155,11 +156,16 @@ def test_the_smallest_valid_configuration_registers_end_to_end(tmp_path, dim, in
                                    model.corrections.mean(axis=0), atol=1e-9)
 
 
-def test_sigma_zero_shows_rho_infinite_not_unknown(tmp_path):
-    """Identical repeats: sigma = 0 and rho = inf (null in JSON, which has no inf); the text
-    said 'rho n/a -> apply' while the reason said 'rho = inf'."""
-    csv = tmp_path / "s0.csv"
-    csv.write_text("id,wx,wy,wz,dx,dy,dz\na,0,0,0,0,0,0\na,0,0,0,0,0,0\nb,1000,0,0,1000,0,0\n"
-                   "c,0,1000,0,0,1000,0\nd,0,0,1000,0,0,1000\ne,500,500,500,500,500,500.1\n")
-    proc = run("register", csv)
-    assert "rho          inf (sigma = 0) -> apply" in proc.stdout, proc.stdout
+def test_sigma_zero_shows_rho_infinite_not_unknown():
+    """Identical repeats (through the core: a CSV drops them as copies): sigma = 0 and
+    rho = inf (null in JSON, which has no inf); the text said 'rho n/a -> apply' while the
+    reason said 'rho = inf'."""
+    working = np.array([[0, 0, 0], [1000, 0, 0], [0, 1000, 0], [0, 0, 1000], [500, 500, 500]],
+                       dtype=float)
+    destination = working + [0, 0, 0]
+    destination[4, 2] += 0.1
+    repeats = [np.array([w, w]) if k == 0 else w[None] for k, w in enumerate(working)]
+    model = build_model(working, destination, ModelConfig(dimension=3),
+                        working_repeats=repeats)
+    text = format_report(model_report(model, unit="mm"))
+    assert "rho          inf (sigma = 0) -> apply" in text, text

@@ -264,3 +264,17 @@ def test_rows_of_empty_fields_are_skipped_like_blank_lines(tmp_path):
     assert t.ids == ("a", "b", "c", "d")
     with pytest.raises(CsvError, match="row 4: column wz is empty"):   # lines still count
         read_fiducials(write(tmp_path, H3 + "a,0,0,0,0,0,0\n,,,,,,\nb,1,0,,1,0,0\n"), 3)
+
+
+def test_rows_pasted_twice_are_copies_not_repeats(tmp_path):
+    """A review: a file with its rows twice (two exports joined) was read as repeats: sigma
+    halved, or 0 with rho inf on single measurements. A row equal to an earlier row of its id
+    in every coordinate is dropped as a copy, with one note; real repeats are kept."""
+    rows = "a,0,0,0,1,0,0\nb,1,0,0,2,0,0\nc,0,1,0,1,1,0\nd,0,0,1,1,0,1\n"
+    repeat = "a,0.001,0,0,1,0,0\n"
+    table = read_fiducials(write(tmp_path, "id,wx,wy,wz,dx,dy,dz\n" + rows + repeat + rows))
+    assert [len(w) for w in table.working_repeats] == [2, 1, 1, 1]   # a: its real repeat only
+    np.testing.assert_array_equal(table.working_repeats[0], [[0, 0, 0], [0.001, 0, 0]])
+    (note,) = [n for n in table.notes if "copies" in n]
+    assert ("4 row(s) repeat an earlier row of their id in every coordinate (row 7 = row 2, "
+            "row 8 = row 3, row 9 = row 4, and 1 more): dropped as copies") in note
