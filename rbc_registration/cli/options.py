@@ -99,8 +99,7 @@ def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
         lines.append(text)
     if truth is not None and destination is not None:
         # no hull in the destination frame: the size ratio alone (100x) decides
-        text = unit_mismatch(destination, truth, [False] * len(report["targets"]),
-                             "target truth")
+        text = unit_mismatch(destination, truth, None, "target truth")
         if text:
             lines.append("the targets' truth: " + text)
         elif "tre_u" in report["targets"][0]:   # one unit: a target's truth that stands out

@@ -68,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
     """Print the report, write JSON."""
     from ..core.evaluation import describe_misfits, gross_misfits, leave_one_out
     from ..core.model import build_model
+    from ..core.scale import implausible_size
+    from ..io.calibration_model import METRES_PER_UNIT
     from ..io.csv_io import read_fiducials, read_targets
     from ..io.report import format_report, model_report, write_json
 
@@ -96,6 +98,10 @@ def run(args: argparse.Namespace) -> int:
     warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report,
                        model.destination, tgt.destination if tgt else None)
     warn_blunders("register", model, args.unit)
+    if args.unit in METRES_PER_UNIT:
+        size = implausible_size(model.destination, METRES_PER_UNIT[args.unit], args.unit)
+        if size:
+            warn("register", size)
     if args.json:
         write_json(report, args.json)
         print(f"wrote {terminal(args.json)}")

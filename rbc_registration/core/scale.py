@@ -28,35 +28,39 @@ def _rms_radius(points: np.ndarray, centre: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((points - centre) ** 2, axis=1))))
 
 
-def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: ArrayLike,
+def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: Optional[ArrayLike],
                   what: str = "targets", noun: str = "targets") -> Optional[str]:
     """The warning for targets that look like they are in another unit than the fiducials.
 
     :param fiducials: fiducial locations (J, d), working frame.
     :param targets: target locations (K, d), working frame.
-    :param inside_hull: (K,) the interpolation's inside-hull flags.
+    :param inside_hull: (K,) the interpolation's inside-hull flags; ``None``: no hull (the
+        destination frame's target truth), the distances alone decide.
     :param what: what the points are, for the message (e.g. ``target truth``).
     :param noun: what one calls them when counting (``targets``, ``candidates``).
     :return: one line naming the likely mismatch and the factor, or ``None``.
     """
     f = np.asarray(fiducials, dtype=float)
     t = np.asarray(targets, dtype=float)
-    if len(t) == 0 or len(f) == 0 or np.any(np.asarray(inside_hull, dtype=bool)):
+    if len(t) == 0 or len(f) == 0 or (inside_hull is not None
+                                      and np.any(np.asarray(inside_hull, dtype=bool))):
         return None
     centre = f.mean(axis=0)
     size = _rms_radius(f, centre)
     if not size > 0:
         return None
-    far = _rms_radius(t, centre) / size
+    # the median distance: one mistyped target does not make a unit mismatch of all of them
+    far = float(np.median(np.linalg.norm(t - centre, axis=1))) / size
     spread = _rms_radius(t, t.mean(axis=0)) / size if len(t) >= 2 else 0.0
     if far >= UNIT_MISMATCH_FACTOR:
-        ratio, how = far, "farther from the fiducials' centre than the fiducials' size"
+        ratio, how = far, "farther from the fiducials' centre than the fiducials' size (median)"
     elif 0 < spread <= 1 / UNIT_MISMATCH_FACTOR:
         ratio, how = 1 / spread, "smaller in spread than the fiducials"
     else:
         return None
-    return (f"all {len(t)} {noun} are outside the fiducials' hull and ~{ratio:.3g}x {how}: "
-            f"likely a unit mismatch between {what} and fiducials (e.g. m vs mm)")
+    where = "outside the fiducials' hull and " if inside_hull is not None else ""
+    return (f"all {len(t)} {noun} are {where}~{ratio:.3g}x {how}: likely a unit mismatch "
+            f"between {what} and fiducials (e.g. m vs mm)")
 
 
 def point_sets_unit_mismatch(fiducials: ArrayLike, hull: Any,
@@ -111,6 +115,34 @@ def frame_mismatch(working: ArrayLike, destination: ArrayLike) -> Optional[str]:
 #: Fiducials farther than this from their centroid (RMS, metres) are unlikely in a cell recorded
 #: in metres (REP 103): a bag in millimetres reads 1000x too large.
 LARGEST_CELL_M = 100.0
+
+
+#: Fiducials closer than this to their centroid (RMS, metres) are unlikely in a cell: a file in
+#: metres read as millimetres is 1000x too small.
+SMALLEST_CELL_M = 1e-3
+
+
+def implausible_size(points: ArrayLike, metres_per_unit: float, unit: str) -> Optional[str]:
+    """The warning for fiducials in a file whose size in its stated ``unit`` looks like another
+    unit (a CSV in millimetres read as metres, or the reverse), or ``None``.
+
+    :param points: fiducials (J, d) in ``unit``; :param metres_per_unit: the unit in metres.
+    :return: one line naming the size, when it is above :data:`LARGEST_CELL_M` or below
+        :data:`SMALLEST_CELL_M` in metres.
+    """
+    p = np.asarray(points, dtype=float)
+    size = _rms_radius(p, p.mean(axis=0)) if len(p) else 0.0
+    metres = size * metres_per_unit
+    if metres > LARGEST_CELL_M:
+        how = f"larger than any cell ({LARGEST_CELL_M:g} m): a file in smaller units"
+    elif 0 < metres < SMALLEST_CELL_M:
+        how = f"smaller than any cell ({SMALLEST_CELL_M:g} m): a file in larger units"
+    else:
+        return None
+    in_metres = f" ({metres:.4g} m)" if metres_per_unit != 1.0 else ""
+    return (f"the fiducials' RMS distance from their centroid is {size:.4g} {unit}{in_metres}, "
+            f"{how} (e.g. mm read as m, or m as mm)? check --unit; an exported calibration "
+            f"converts by it")
 
 
 def implausible_metres(points: ArrayLike) -> Optional[str]:

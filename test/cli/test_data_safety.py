@@ -111,14 +111,15 @@ def test_register_names_an_ignored_working_repeat_in_one_line(tmp_path, capsys):
         f"{i},{x},{y},{z},{x + 10},{y},{z}\n{i},{x + 1e-4},{y},{z},{x + 10},{y},{z}\n"
         for i, (x, y, z) in enumerate([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)]))
         + "3,0.3,0,1,10,0,1\n")
-    assert cli.main(["register", str(f), "--json", str(tmp_path / "r.json")]) == 0
+    # --unit m: a cell 1 m across (in mm it is too small for a cell, another warning)
+    assert cli.main(["register", str(f), "--unit", "m", "--json", str(tmp_path / "r.json")]) == 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("rbc-registration register: warning: "), err
     assert "row 12" in err[0] and "fiducial '3'" in err[0] and "point is 0.29995 from" in err[0]
     assert json.loads((tmp_path / "r.json").read_text())["n_measurements"] == 10
-    assert cli.main(["register", str(f), "--outlier-distance", "0"]) == 0
+    assert cli.main(["register", str(f), "--unit", "m", "--outlier-distance", "0"]) == 0
     assert capsys.readouterr().err == ""
-    assert cli.main(["register", str(f), "--outlier-distance", "0.00001"]) == 0
+    assert cli.main(["register", str(f), "--unit", "m", "--outlier-distance", "0.00001"]) == 0
     assert len(capsys.readouterr().err.strip().splitlines()) == 6
 
 

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rbc_registration.core.model import ModelConfig, build_model
-from rbc_registration.core.scale import frame_mismatch
+from rbc_registration.core.scale import frame_mismatch, unit_mismatch
 from rbc_registration.core.synthetic import make_cell
 
 
@@ -48,3 +48,38 @@ def test_noise_bias_and_flat_cells_are_not_set_up_errors():
     x, y = rigid(3)
     assert frame_mismatch(x, y * 1.9) is None          # within the factor: a bias to correct
     assert frame_mismatch(np.ones((4, 3)), np.ones((4, 3))) is None   # registration's to say
+
+
+def test_one_mistyped_target_is_no_unit_mismatch_of_all():
+    """A review: one truth point mistyped (3.4e8 mm) made 'all 8 targets ... unit mismatch'
+    (an RMS over the targets); the median distance leaves it to the per-target blunder line.
+    Without a hull (the truth, in the destination frame) the text claims none."""
+    rng = np.random.default_rng(2)
+    fiducials = rng.uniform(-500, 500, (30, 3))
+    targets = rng.uniform(-400, 400, (8, 3))
+    wild = targets.copy()
+    wild[0, 0] = 3.4e8
+    assert unit_mismatch(fiducials, wild, None, "target truth") is None
+    text = unit_mismatch(fiducials, targets * 1000, None, "target truth")
+    assert text.startswith("all 8 targets are ~") and "hull" not in text
+    assert "likely a unit mismatch between target truth and fiducials" in text
+
+
+@pytest.mark.parametrize("size, metres_per_unit, unit, expected", [
+    (500.0, 1.0, "m", "is 500 m, larger than any cell (100 m)"),      # mm read as m
+    (0.5, 1e-3, "mm", "is 0.5 mm (0.0005 m), smaller than any cell"),  # m read as mm
+    (500.0, 1e-3, "mm", None),
+    (0.5, 1.0, "m", None),
+])
+def test_a_file_whose_cell_size_fits_another_unit_is_named(size, metres_per_unit, unit,
+                                                         expected):
+    """A review: register --unit m on a millimetre file exported a transform 1000x off."""
+    from rbc_registration.core.scale import implausible_size
+    rng = np.random.default_rng(4)
+    points = rng.normal(size=(40, 3))
+    points *= size / np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1)))
+    text = implausible_size(points, metres_per_unit, unit)
+    if expected is None:
+        assert text is None
+    else:
+        assert expected in text and "check --unit" in text
