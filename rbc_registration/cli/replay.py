@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..io.bag.records import MAX_REPLAY_WAIT, REPLAY_RATES
+from ..io.bag.records import DEFAULT_MAX_GAP, MAX_REPLAY_WAIT, REPLAY_RATES
 from .options import name_list, number_in
 
 
@@ -25,6 +25,10 @@ def add_parser(sub: Any) -> None:
     rp.add_argument("--wait", type=number_in(0.0, MAX_REPLAY_WAIT), default=5.0,
                     metavar="SECONDS", help="wait this long at most for subscribers before "
                                             f"playing, 0 to {MAX_REPLAY_WAIT:g} (default 5)")
+    rp.add_argument("--max-gap", type=number_in(0.0, MAX_REPLAY_WAIT), default=DEFAULT_MAX_GAP,
+                    metavar="SECONDS", help="longest pause between two messages (wall time, "
+                    "after --rate): a longer gap in the receive times is shortened to it, with "
+                    f"one line, 0 to {MAX_REPLAY_WAIT:g} (default {DEFAULT_MAX_GAP:g})")
     rp.add_argument("--quiet", action="store_true", help="no progress output")
     rp.set_defaults(func=run)
 
@@ -35,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         from ..ros.replay import replay
 
         result = replay(args.bag, rate=args.rate, loop=args.loop, topics=args.topics,
-                        wait=args.wait, progress=not args.quiet)
+                        wait=args.wait, progress=not args.quiet, max_gap=args.max_gap)
     except KeyboardInterrupt:
         print("replay: interrupted", file=sys.stderr)
         return 130

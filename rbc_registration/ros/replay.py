@@ -8,13 +8,14 @@ load rclpy. The whole bag is read into memory first.
 from __future__ import annotations
 
 import importlib
+import math
 import time
 from pathlib import Path
 from typing import Any, NamedTuple, Optional, Sequence, Union
 
 from ..io.bag.reader import read_raw
-from ..io.bag.records import (MAX_REPLAY_WAIT, REPLAY_RATES, BagError, RawMessage,
-                              topic_name_error)
+from ..io.bag.records import (DEFAULT_MAX_GAP, MAX_REPLAY_WAIT, REPLAY_RATES, BagError,
+                              RawMessage, topic_name_error)
 from ..io.escape import terminal
 from ..io.progress import Progress
 
@@ -70,13 +71,16 @@ def _wait_for_subscribers(publishers: dict[str, Any], wait: float,
 
 def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
            topics: Optional[Sequence[str]] = None, wait: float = 5.0,
-           context: Any = None, progress: bool = True, log: Any = print) -> ReplayResult:
+           context: Any = None, progress: bool = True, log: Any = print,
+           max_gap: float = DEFAULT_MAX_GAP) -> ReplayResult:
     """Publish the messages of ``bag`` with their recorded timing divided by ``rate``.
 
     :param rate: time scale (> 0): 2 plays twice as fast.
     :param loop: play again and again until interrupted (KeyboardInterrupt).
     :param topics: only these topics (default: all whose type rclpy knows).
     :param wait: seconds to wait at most for subscribers before the first message.
+    :param max_gap: longest pause between two messages [s of wall time, after ``rate``]; a
+        longer gap in the receive times is shortened to it, with one line (:func:`schedule`).
     :param context: an initialised ``rclpy.Context`` to use; default: a new one, shut down after.
     :raises BagError: for a bad bag, an unknown topic or a type rclpy does not know.
     :raises ValueError: for a rate outside ``REPLAY_RATES`` or a wait outside
@@ -87,6 +91,8 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
         raise ValueError(f"rate must be in [{low:g}, {high:g}], got {rate!r}")
     if not 0 <= wait <= MAX_REPLAY_WAIT:
         raise ValueError(f"wait must be in [0, {MAX_REPLAY_WAIT:g}] s, got {wait!r}")
+    if not 0 <= max_gap <= MAX_REPLAY_WAIT:
+        raise ValueError(f"max_gap must be in [0, {MAX_REPLAY_WAIT:g}] s, got {max_gap!r}")
     messages = read_raw(bag, topics, progress=progress,
                         warn=lambda line: log(f"replay: {terminal(line)}"))
     types = {m.topic: m.msgtype for m in messages}
@@ -129,7 +135,7 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
         publishers = {t: node.create_publisher(c, t, qos) for t, c in classes.items()}
         _wait_for_subscribers(publishers, wait, log)
         started = time.monotonic()
-        published, passes = _play(messages, publishers, rate, loop, progress)
+        published, passes = _play(messages, publishers, rate, loop, progress, max_gap, log)
         seconds = time.monotonic() - started
         for pub in publishers.values():  # reliable delivery before the publishers go away
             pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
@@ -141,15 +147,40 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
             rclpy.try_shutdown(context=context)
 
 
+def schedule(log_ns: Sequence[int], rate: float, max_gap: float) -> tuple[list[float], str]:
+    """The wall-clock offset [s] of each message from the first: its receive time divided by
+    ``rate``, with every gap longer than ``max_gap`` seconds (after the rate) shortened to it
+    (one message logged 30 days late made a replay sleep silently for days).
+
+    :return: the offsets, and one line naming the shortened gaps (empty when none).
+    """
+    offsets, total, shortened = [0.0], 0.0, []
+    for k in range(1, len(log_ns)):
+        gap = (log_ns[k] - log_ns[k - 1]) * 1e-9 / rate
+        if gap > max_gap:
+            shortened.append((gap, k))
+            gap = max_gap
+        total += max(gap, 0.0)
+        offsets.append(total)
+    if not shortened:
+        return offsets, ""
+    longest, k = max(shortened)
+    return offsets, (f"{len(shortened)} gap(s) between messages longer than --max-gap "
+                     f"{max_gap:g} s (at --rate {rate:g}) shortened to it; the longest "
+                     f"{longest * rate:.4g} s of receive time, before message {k + 1}")
+
+
 def _play(messages: list[RawMessage], publishers: dict[str, Any], rate: float, loop: bool,
-          progress: bool) -> tuple[int, int]:
-    t0 = messages[0].log_ns
+          progress: bool, max_gap: float = math.inf, log: Any = print) -> tuple[int, int]:
+    offsets, line = schedule([m.log_ns for m in messages], rate, max_gap)
+    if line:
+        log(f"replay: {line}")
     published = passes = 0
     while True:
         bar = Progress("replay", len(messages), enabled=progress)
         start = time.monotonic()
-        for m in messages:
-            delay = start + (m.log_ns - t0) * 1e-9 / rate - time.monotonic()
+        for m, offset in zip(messages, offsets):
+            delay = start + offset - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             publishers[m.topic].publish(m.data)

@@ -213,3 +213,18 @@ def test_a_topic_no_ros_graph_takes_is_one_clear_line(tmp_path, capsys):
     assert cli.main(["replay", str(bag), "--wait", "0", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "'/my node!/fiducial_pairs' is not a valid ROS topic name" in err[0]
+
+
+def test_a_long_gap_in_the_receive_times_is_shortened_to_max_gap_with_one_line():
+    """A review: one message logged 30 days late made replay sleep silently (43 min at
+    --rate 1000, 30 days at 1)."""
+    from rbc_registration.ros.replay import schedule
+
+    day = 86_400 * 10**9
+    log_ns = [0, 10**9, 2 * 10**9, 2 * 10**9 + 30 * day, 2 * 10**9 + 30 * day + 10**8]
+    offsets, line = schedule(log_ns, rate=2.0, max_gap=60.0)
+    assert offsets == pytest.approx([0.0, 0.5, 1.0, 61.0, 61.05])
+    assert line == ("1 gap(s) between messages longer than --max-gap 60 s (at --rate 2) "
+                    "shortened to it; the longest 2.592e+06 s of receive time, before message 4")
+    offsets, line = schedule(log_ns[:3], rate=1.0, max_gap=60.0)
+    assert offsets == pytest.approx([0.0, 1.0, 2.0]) and line == ""

@@ -28,6 +28,9 @@ STORAGES = ("sqlite3", "mcap")
 #: graph takes it) and the longest wait for subscribers [s].
 REPLAY_RATES = (1e-3, 1e6)
 MAX_REPLAY_WAIT = 3600.0
+#: ``replay --max-gap``: the longest pause between two messages [s of wall time] (a longer gap
+#: in the receive times, e.g. one message logged days late, is shortened to it).
+DEFAULT_MAX_GAP = 60.0
 #: ``synth-bag --period``: seconds between measurements (stamps are in whole nanoseconds and
 #: the bag must end before the int64 nanosecond stamps overflow).
 PERIODS = (1e-9, 3600.0)
