@@ -105,7 +105,8 @@ class Calibration:
         if self.dimension not in (2, 3):
             raise ValueError(f"dimension: must be 2 or 3, got {self.dimension}")
         fields.check_choice("registration", self.registration, REGISTRATIONS)
-        translation = fields.floats("translation", self.translation, "xyz")
+        translation = fields.floats("translation", self.translation, "xyz",
+                                    fields.MAX_ABS_COORDINATE)
         quaternion = np.array(fields.floats("rotation", self.rotation, "xyzw"))
         norm = float(np.linalg.norm(quaternion))
         if abs(norm - 1.0) > QUATERNION_TOLERANCE:

@@ -17,6 +17,7 @@ from typing import Any, Optional, Sequence
 import yaml
 
 from ..core.frames import frame_id_problem
+from ..core.validation import MAX_ABS_COORDINATE
 
 FORMAT = "rbc_registration_calibration"
 FORMAT_VERSION = 2
@@ -114,8 +115,14 @@ def check_int(name: str, value: Any, minimum: int) -> int:
     return int(value)
 
 
-def check_number(name: str, value: Any) -> float:
-    """A finite real number (not a bool, not a string)."""
+def check_number(name: str, value: Any, bound: float = math.inf) -> float:
+    """A finite real number (not a bool, not a string) within ±``bound``."""
+    if isinstance(value, str) and _DECIMAL.fullmatch(value.strip()):
+        # PyYAML (YAML 1.1) reads a float only with a point and a signed exponent: 5e-05 and
+        # 1.5e5 are text
+        raise ValueError(f"{name}: must be a number, got {_quote(value)} (YAML 1.1 reads it as "
+                         f"text: its floats need a decimal point and a signed exponent, e.g. "
+                         f"5.0e-05 or 1.5e+05)")
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ValueError(f"{name}: must be a number, got {_quote(value)}")
     try:
@@ -125,12 +132,14 @@ def check_number(name: str, value: Any) -> float:
                          f"digits") from None
     if not math.isfinite(v):
         raise ValueError(f"{name}: must be finite, got {value!r}")
+    if abs(v) > bound:
+        raise ValueError(f"{name}: must be within ±{bound:g} m (as any coordinate), got {v!r}")
     return v
 
 
 def check_length(name: str, value: Any) -> float:
-    """A finite, non-negative length [m]."""
-    v = check_number(name, value)
+    """A finite, non-negative length [m], at most :data:`MAX_ABS_COORDINATE`."""
+    v = check_number(name, value, MAX_ABS_COORDINATE)
     if v < 0:
         raise ValueError(f"{name}: must be >= 0 (a length in metres), got {v!r}")
     return v
@@ -142,13 +151,13 @@ def sequence(name: str, value: Any) -> tuple[Any, ...]:
     return tuple(value)
 
 
-def floats(name: str, value: Any, axes: str) -> tuple[float, ...]:
-    """``len(axes)`` finite numbers, named ``name.<axis>`` in errors."""
+def floats(name: str, value: Any, axes: str, bound: float = math.inf) -> tuple[float, ...]:
+    """``len(axes)`` finite numbers within ±``bound``, named ``name.<axis>`` in errors."""
     values = sequence(name, value)
     if len(values) != len(axes):
         raise ValueError(f"{name}: must have {len(axes)} components ({', '.join(axes)}), got "
                          f"{len(values)}")
-    return tuple(check_number(f"{name}.{axis}", v) for axis, v in zip(axes, values))
+    return tuple(check_number(f"{name}.{axis}", v, bound) for axis, v in zip(axes, values))
 
 
 def utc_time(name: str, value: Any) -> str:
@@ -236,6 +245,10 @@ def optional_length(name: str, value: Optional[Any]) -> Optional[float]:
 
 
 
+#: The longest number read [characters]: below Python's limit of 4300 digits (which raises a bare
+#: error naming no field); a float64 needs 25, a longer one is refused by its field.
+MAX_NUMBER_CHARS = 4000
+
 #: A number as a calibration file writes it: decimal digits, a point, an exponent (and YAML's
 #: .inf/.nan, which the field checks refuse with their own message).
 _DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?|[-+]?\.(inf|Inf|INF)|\.(nan|NaN|NAN)")
@@ -251,6 +264,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
     def _number(self, node: Any, construct: Any) -> Any:
         text = str(node.value)
+        if len(text) > MAX_NUMBER_CHARS:    # Python refuses int('9' * 4301) with a bare error
+            raise yaml.constructor.ConstructorError(
+                None, None, f"a number of {len(text)} characters (at most {MAX_NUMBER_CHARS})",
+                node.start_mark)
         ambiguous = not _DECIMAL.fullmatch(text) or re.fullmatch(r"[-+]?0\d+", text)
         if ambiguous:
             raise yaml.constructor.ConstructorError(
@@ -276,6 +293,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         seen: set = set()
         for key_node, value_node in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                raise yaml.constructor.ConstructorError(
+                    None, None, "a merge key (<<) is not read here: write the fields out",
+                    key_node.start_mark)
             if not isinstance(key_node, yaml.ScalarNode):   # ? [a, b] : 1, {[1, 2]: x}
                 kind = "list" if isinstance(key_node, yaml.SequenceNode) else "mapping"
                 raise yaml.constructor.ConstructorError(

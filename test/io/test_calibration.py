@@ -213,6 +213,12 @@ RULES = [
     ({"decision.apply": "yes"}, "decision.apply: must be true or false, got 'yes'"),
     ({"sigma_L": 0.001}, "sigma_L: must be a list, got 0.001"),
     ({"translation.y": float("nan")}, "translation.y: must be finite, got nan"),
+    ({"translation.x": 1e300}, "translation.x: must be within ±1e+12 m (as any coordinate), got "
+                               "1e+300"),
+    ({"fre_rms": 1e13}, "fre_rms: must be within ±1e+12 m"),
+    # PyYAML reads 5e-05 (no point) and 1.5e5 (no exponent sign) as text
+    ({"fre_rms": "5e-05"}, "fre_rms: must be a number, got '5e-05' (YAML 1.1 reads it as text: "
+                           "its floats need a decimal point and a signed exponent"),
     ({"fre_rms": float("inf")}, "fre_rms: must be finite, got inf"),
     ({"sigma_L": [1e-3, float("-inf")]}, "sigma_L[1]: must be finite, got -inf"),
     ({"expected_tre_rigid": -1e-4}, "expected_tre_rigid: must be >= 0 (a length in metres), got "
@@ -313,6 +319,12 @@ def test_numbers_yaml_reads_otherwise_than_they_look_are_refused(tmp_path, writt
     (b"format: \xff\xfe\n", "not UTF-8 text (byte 8)"),
     (b"", "empty (no YAML document): not a calibration file"),
     (b"# only a comment\n", "empty (no YAML document): not a calibration file"),
+    # a review: a bare Python error naming neither file nor field, and an unclear one
+    (b"n_fiducials: " + b"9" * 5000 + b"\n",
+     "not valid YAML at line 1, column 14: a number of 5000 characters (at most 4000)"),
+    (b"base: &b {x: 1.0, y: 2.0, z: 3.0}\ntranslation: {<<: *b}\n",
+     "not valid YAML at line 2, column 15: a merge key (<<) is not read here: write the fields "
+     "out"),
     (b"fre_rms: 0.1\nsigma: null\nfre_rms: 0.2\n",             # last-wins before
      "not valid YAML at line 3, column 1: found the key 'fre_rms' twice"),
 ])
