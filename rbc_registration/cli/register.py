@@ -68,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     """Print the report, write JSON."""
     from ..core.evaluation import describe_misfits, gross_misfits, leave_one_out
     from ..core.model import build_model
+    from ..core.repeats import describe_twins, twin_groups
     from ..core.scale import implausible_size
     from ..io.calibration_model import METRES_PER_UNIT
     from ..io.csv_io import read_fiducials, read_targets
@@ -98,6 +99,10 @@ def run(args: argparse.Namespace) -> int:
     warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report,
                        model.destination, tgt.destination if tgt else None)
     warn_blunders("register", model, args.unit)
+    twins = describe_twins(fid.ids, fid.working,
+                           twin_groups(fid.working, fid.destination), args.unit)
+    if twins:
+        warn("register", twins)
     if args.unit in METRES_PER_UNIT:
         size = implausible_size(model.destination, METRES_PER_UNIT[args.unit], args.unit)
         if size:

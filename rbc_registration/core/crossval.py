@@ -38,6 +38,7 @@ from .constants import CANDIDATES, FOLD_KINDS, INTERPOLATIONS, UNCORRECTED
 from .interpolation import PaperInterpolator
 from .kriging import KrigingInterpolator
 from .registration import Registration, rigid_fit
+from .repeats import twin_groups
 from .restoration import restore_rigid_body
 from .validation import as_point_pairs, rounding
 
@@ -72,17 +73,28 @@ def fold_scheme(count: int) -> FoldScheme:
     return FoldScheme(FOLD_KINDS[1], K_FOLDS)
 
 
-def fold_groups(working: NDArray[np.float64], scheme: FoldScheme) -> list[NDArray[np.intp]]:
+def fold_groups(working: NDArray[np.float64], scheme: FoldScheme,
+                destination: Optional[NDArray[np.float64]] = None) -> list[NDArray[np.intp]]:
     """The index sets held out together. k-fold: the fiducials ranked by distance from their
     centroid (stable for ties), rank r in fold r mod k, so every fold spans the cell and the split
-    does not depend on the order of the fiducials nor on a rigid motion of either frame."""
+    does not depend on the order of the fiducials nor on a rigid motion of either frame.
+
+    With ``destination``, one point under several ids
+    (:func:`~.repeats.twin_groups`) is held out together: leave-one-out leaves the group out,
+    k-fold puts it in the fold of its first fiducial.
+    """
     j = len(working)
+    twins = twin_groups(working, destination) if destination is not None else []
+    first = np.arange(j)
+    for group in twins:
+        first[group] = group[0]
     if scheme.kind == FOLD_KINDS[0]:
-        return [np.array([k], dtype=np.intp) for k in range(j)]
+        return [np.flatnonzero(first == k) for k in range(j) if first[k] == k]
     radius = np.linalg.norm(working - working.mean(axis=0), axis=1)
     rank = np.empty(j, dtype=np.intp)
     rank[np.argsort(radius, kind="stable")] = np.arange(j)
-    return [np.flatnonzero(rank % scheme.n_folds == f) for f in range(scheme.n_folds)]
+    fold = (rank % scheme.n_folds)[first]
+    return [np.flatnonzero(fold == f) for f in range(scheme.n_folds)]
 
 
 class CrossValidation(NamedTuple):
@@ -208,13 +220,14 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
         return CrossValidation(scheme, {}, None, {c: why for c in candidates})
     if "kriging" in candidates and kriging is None:
         unavailable["kriging"] = "no kriging model"
-    groups = fold_groups(x, scheme)
+    groups = fold_groups(x, scheme, y)
     held_out = _held_out(kriging, groups)
     scale = np.full(j, np.nan) if kriging is not None else None
     errors = {c: np.full(j, np.nan) for c in candidates if c not in unavailable}
     corrected = [c for c in errors if c in INTERPOLATIONS]
     fast_u = None
-    if UNCORRECTED in errors and uncorrected_subset is None and scheme.kind == FOLD_KINDS[0]:
+    if (UNCORRECTED in errors and uncorrected_subset is None and scheme.kind == FOLD_KINDS[0]
+            and len(groups) == j):                  # one fiducial per fold: no twins
         fast_u = loo_rigid_errors(x, y)
         if fast_u is not None:
             errors[UNCORRECTED][:] = fast_u

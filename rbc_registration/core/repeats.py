@@ -47,3 +47,65 @@ def typical_spacing(points: ArrayLike) -> float:
         return 0.0
     dist, _ = cKDTree(unique).query(unique, k=2)
     return float(np.median(dist[:, 1]))
+
+
+#: Two fiducials closer than this fraction of the spacing (:func:`twin_groups`) in both frames
+#: are one point under two ids (``F01`` and ``f01``, two sheets merged): a real pair of holes
+#: that close is rare (1.5 mm on a 150 mm grid), a measured twin differs by its noise (~1e-4).
+TWIN_FRACTION = 0.01
+
+
+def twin_groups(working: ArrayLike, destination: ArrayLike,
+                fraction: float = TWIN_FRACTION) -> list[list[int]]:
+    """Groups (two or more indices, ascending) of fiducials closer than ``fraction`` x the
+    spacing to one another in both frames: one point under several ids.
+
+    The spacing of each frame is the median distance from a point to its second-nearest
+    neighbour, which twins do not shrink even when every fiducial has one (the nearest is then
+    the twin). Cross-validation holds a group out together (else each twin predicts the other
+    and the held-out errors look far better than the corrections are).
+
+    :return: the groups, in order of their first index; empty when there are none.
+    """
+    x = np.asarray(working, dtype=float)
+    y = np.asarray(destination, dtype=float)
+    if len(x) < 3:
+        return []
+    limits = []
+    for p in (x, y):
+        dist, _ = cKDTree(p).query(p, k=3)
+        limits.append(fraction * float(np.median(dist[:, 2])))
+    if not min(limits) > 0:
+        return []
+    parent = list(range(len(x)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, k in cKDTree(x).query_pairs(limits[0], output_type="ndarray"):
+        if np.linalg.norm(y[i] - y[k]) <= limits[1]:
+            parent[max(root(i), root(k))] = min(root(i), root(k))
+    groups: dict[int, list[int]] = {}
+    for i in range(len(x)):
+        groups.setdefault(root(i), []).append(i)
+    return [g for g in groups.values() if len(g) > 1]
+
+
+def describe_twins(ids: Sequence[str], working: ArrayLike, groups: Sequence[Sequence[int]],
+                   unit: str = "") -> str:
+    """One line naming the :func:`twin_groups` (at most three), or ``""`` when none."""
+    if not groups:
+        return ""
+    x = np.asarray(working, dtype=float)
+    unit = f" {unit}" if unit else ""
+    shown = "; ".join(
+        " and ".join(repr(ids[i]) for i in g) + f" ({float(np.ptp(x[g], axis=0).max()):.3g}"
+        f"{unit} apart)" for g in groups[:3])
+    more = f"; and {len(groups) - 3} more" if len(groups) > 3 else ""
+    return (f"{len(groups)} point(s) measured under two or more ids, the same place in both "
+            f"frames: {shown}{more}: one hole under two names (a case or a space apart, two "
+            f"sheets merged)? merge them under one id; cross-validation holds each group out "
+            f"together")
