@@ -71,7 +71,28 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                      "other_topics": dict(contents.other_topics)}
     out = Evaluation(ev.model, ev.fiducials, settings, targets, report, ev.rejected,
                      contents.count_mismatches + contents.notes + ev.notes)
-    return with_warnings(out, (ev.warning,) if ev.warning else ())
+    many = rejections_line(ev.rejected, dict(ev.first_rejections), len(contents.inputs))
+    return with_warnings(out, tuple(w for w in (ev.warning, many) if w))
+
+
+#: A warning names the rejections when they are at least this share of the input messages.
+REJECTED_WARN_FRACTION = 0.1
+
+
+def rejections_line(rejected: dict[str, int], first: dict[str, str], total: int) -> str:
+    """The warning when at least :data:`REJECTED_WARN_FRACTION` of the ``total`` input messages
+    were rejected, naming each reason's count and its first message (the model was built from
+    the rest, as the node's would be), or "". Duplicates (copies, not lost measurements) and
+    ambiguous points have lines of their own (:func:`duplicates_line`,
+    :func:`ambiguous_points_line`) and are not counted."""
+    rejected = {r: c for r, c in rejected.items() if c and r not in ("duplicate", "ambiguous")}
+    n = sum(rejected.values())
+    if not total or n < REJECTED_WARN_FRACTION * total:
+        return ""
+    top = max(rejected, key=lambda r: rejected[r])
+    counts = ", ".join(f"{r} {c}" for r, c in sorted(rejected.items(), key=lambda rc: -rc[1]))
+    return (f"{n} of {total} input message(s) rejected ({counts}), e.g. {top}: "
+            f"{first.get(top, '?')}; the model is built from the rest, as the node's would be")
 
 
 def ambiguous_points_line(ev: Evaluation, working_topic: str, destination_topic: str) -> str:

@@ -53,6 +53,8 @@ class OfflineModel(NamedTuple):
     rejected: dict[str, int]
     notes: tuple[str, ...]
     warning: str = ""
+    #: The first rejection's message by reason (as :attr:`Accumulated.first_rejections`).
+    first_rejections: tuple[tuple[str, str], ...] = ()
 
 
 class _Log:
@@ -188,4 +190,4 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
         if targets is not None and targets.destination is None else ()
     notes += acc.stamp_warnings
     return OfflineModel(state.model, state.fiducials, settings, targets, acc.rejected, notes,
-                        state.warning)
+                        state.warning, tuple(acc.first_rejections.items()))

@@ -480,3 +480,21 @@ def test_outputs_into_the_bag_or_unwritable_are_refused_before_reading(tmp_path,
     assert cli.main(["evaluate", str(bag), "--quiet", "--out", str(out), "--json",
                      str(tmp_path / "new2" / "r.json")]) == 0
     assert (out / "report.json").exists() and (tmp_path / "new2" / "r.json").exists()
+
+
+def test_a_bag_whose_messages_are_mostly_rejected_says_why(tmp_path, capsys):
+    """A review: a points bag whose destination stream came 60 s late lost 99.6 % of its points
+    (the pairing buffer) with warnings: [] and exit 0; now one warning names the share, the
+    reasons and the first message (the model is built from the rest, as the node's would be)."""
+    msgs = list(cell_messages(make_cell("RA", seed=0)))
+    n = sum(m.topic == DEFAULT_TOPICS.fiducial_pairs for m in msgs)
+    stray = [OutMessage(DEFAULT_TOPICS.fiducial_pairs, "pair", 10**15 + k * 10**6, "camera",
+                        (0.1, 0.2, 0.0), f"X{k}", "world", (0.1, 0.2, 0.0))
+             for k in range(n // 5)]
+    write_bag(tmp_path / "bag", msgs + stray, progress=False)
+    report = run_json(["evaluate", str(tmp_path / "bag"), "--quiet"], tmp_path / "e.json")
+    (line,) = [w for w in report["warnings"] if "input message(s) rejected" in w]
+    assert line.startswith(f"{n // 5} of {n + n // 5} input message(s) rejected (frame "
+                           f"{n // 5}), e.g. frame: "), line
+    assert "working frame must be 'tracker', got 'camera'" in line
+    assert line in capsys.readouterr().err
