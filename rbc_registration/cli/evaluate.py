@@ -29,7 +29,7 @@ def add_parser(sub: Any) -> None:
     ev.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
     ev.add_argument("--out", type=Path, metavar="DIR",
                     help="write report.json, report.md and PNG figures here")
-    add_model_options(ev, "default: 2 when every z in the bag is 0, else 3", "m",
+    add_model_options(ev, "default: 2 when every z of the measurements is 0, else 3", "m",
                       defaults=False)
     ev.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="a registration_node parameter, e.g. -p merge_radius:=0.002 (repeatable)")
@@ -116,7 +116,9 @@ def run(args: argparse.Namespace) -> int:
         contents = read_bag(args.bag, topics, required, progress=not args.quiet)
         dim = args.dim or params.pop("dimension", None)
         if dim is None:
-            dim, why = infer_dimension(contents.inputs, contents.targets)
+            dim, why = infer_dimension(contents.inputs, contents.targets,
+                                       params.get("working_frame", ""),
+                                       params.get("destination_frame", ""))
         else:
             why = f"dimension {dim} (given)"
         params.pop("dimension", None)

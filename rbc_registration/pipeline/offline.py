@@ -15,12 +15,13 @@ from typing import Any, Mapping, NamedTuple, Optional, Sequence, Union
 import numpy as np
 
 from ..core.accumulator import FiducialAccumulator, FiducialSet
+from ..core.constants import WORKING
 from ..core.model import RbcModel
 from ..core.pairing import StampPairer
 from ..core.records import RejectedMeasurement, quote
 from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
-from .settings import Settings
+from .settings import SPECS, Settings
 from .state import build_state
 from .targets import Targets, first_conflict, mean_by_id
 
@@ -69,22 +70,36 @@ class _Log:
     error = info = warning
 
 
-def infer_dimension(inputs: Sequence[Input],
-                    targets: Sequence[PairMessage] = ()) -> tuple[int, str]:
-    """2 when every z coordinate of the inputs and targets is exactly 0, else 3.
+def infer_dimension(inputs: Sequence[Input], targets: Sequence[PairMessage] = (),
+                    working_frame: str = "", destination_frame: str = "") -> tuple[int, str]:
+    """2 when every z coordinate of the measurements is exactly 0, else 3.
+
+    Only the measurements the node would take count: in ``working_frame`` and
+    ``destination_frame`` (default: the parameters' defaults; a pair's empty destination frame
+    is the parameter) with finite z; the targets never decide (dimension 2 passes a target's z
+    through), and a message in another frame, which is rejected, does not either.
 
     :return: the dimension and a sentence saying why.
     """
+    working_frame = working_frame or SPECS["working_frame"].default
+    destination_frame = destination_frame or SPECS["destination_frame"].default
     zs = []
-    for m in tuple(inputs) + tuple(targets):
+    for m in inputs:
         if isinstance(m, PointMessage):
-            zs.append(m.xyz[2])
-        else:
+            frame = working_frame if m.stream == WORKING else destination_frame
+            if m.frame_id == frame:
+                zs.append(m.xyz[2])
+        elif m.working_frame == working_frame and \
+                (m.destination_frame or destination_frame) == destination_frame:
             zs += [m.working[2], m.destination[2]]
-    zs = [z for z in zs if not math.isnan(z)]
+    zs = [z for z in zs if math.isfinite(z)]
+    target_z = any(z != 0.0 for m in targets for z in (m.working[2], m.destination[2])
+                   if math.isfinite(z))
     if zs and all(z == 0.0 for z in zs):
-        return 2, "dimension 2: every z in the bag is 0 (--dim 3 to override)"
-    return 3, "dimension 3: the bag has non-zero z (--dim 2 to register x, y only)"
+        return 2, ("dimension 2: every z of the measurements is 0"
+                   + (" (the targets' z is passed through)" if target_z else "")
+                   + " (--dim 3 to override)")
+    return 3, "dimension 3: the measurements have non-zero z (--dim 2 to register x, y only)"
 
 
 def settings_for(dimension: int, overrides: Mapping[str, Any]) -> Settings:

@@ -146,13 +146,27 @@ def test_rejections_are_counted_like_the_node(tmp_path):
     assert report["n_fiducials"] == len(cell.fiducial_ids) - 2
 
 
+def test_a_rejected_message_or_a_target_does_not_make_a_2d_bag_3d(tmp_path, capsys):
+    """A review: one FiducialPair in another frame (rejected) with z = 0.5 made the RA bag 3D,
+    then refused as coplanar; so did a target's z."""
+    msgs = list(cell_messages(make_cell("RA", seed=0)))
+    stray = OutMessage(DEFAULT_TOPICS.fiducial_pairs, "pair", msgs[0].stamp_ns + 1, "camera",
+                       (0.1, 0.2, 0.5), "X", "world", (0.1, 0.2, 0.5))
+    targets = [m._replace(xyz=m.xyz[:2] + (0.001,)) if m.topic == DEFAULT_TOPICS.targets
+               else m for m in msgs]
+    for name, bag_msgs in (("stray", [msgs[0], stray] + msgs[1:]), ("target_z", targets)):
+        write_bag(tmp_path / name, bag_msgs, progress=False)
+        assert cli.main(["evaluate", str(tmp_path / name), "--quiet"]) == 0, name
+        assert "dimension 2: every z of the measurements is 0" in capsys.readouterr().out
+
+
 def test_dimension_inference_and_override(tmp_path, capsys):
     write_bag(tmp_path / "ra", cell_messages(make_cell("RA", seed=0)), progress=False)
     write_bag(tmp_path / "a", cell_messages(make_cell("A", seed=0, repeats=2)), progress=False)
     assert cli.main(["evaluate", str(tmp_path / "ra"), "--quiet"]) == 0
-    assert "dimension 2: every z in the bag is 0" in capsys.readouterr().out
+    assert "dimension 2: every z of the measurements is 0" in capsys.readouterr().out
     assert cli.main(["evaluate", str(tmp_path / "a"), "--quiet"]) == 0
-    assert "dimension 3: the bag has non-zero z" in capsys.readouterr().out
+    assert "dimension 3: the measurements have non-zero z" in capsys.readouterr().out
     report = run_json(["evaluate", str(tmp_path / "a"), "--quiet", "--dim", "2"],
                       tmp_path / "e.json")
     assert "dimension 2 (given)" in capsys.readouterr().out and report["dim"] == 2
