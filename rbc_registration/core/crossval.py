@@ -221,6 +221,8 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
     if "kriging" in candidates and kriging is None:
         unavailable["kriging"] = "no kriging model"
     groups = fold_groups(x, scheme, y)
+    if scheme.kind == FOLD_KINDS[0]:        # twins held out together: fewer folds than J
+        scheme = scheme._replace(n_folds=len(groups))
     held_out = _held_out(kriging, groups)
     scale = np.full(j, np.nan) if kriging is not None else None
     errors = {c: np.full(j, np.nan) for c in candidates if c not in unavailable}

@@ -96,7 +96,9 @@ def twin_groups(working: ArrayLike, destination: ArrayLike,
 
 def describe_twins(ids: Sequence[str], working: ArrayLike, groups: Sequence[Sequence[int]],
                    unit: str = "") -> str:
-    """One line naming the :func:`twin_groups` (at most three), or ``""`` when none."""
+    """One line naming the :func:`twin_groups` (at most three), or ``""`` when none. In 2D
+    (``working`` with two columns) points one above the other are one place too, which the
+    line says."""
     if not groups:
         return ""
     x = np.asarray(working, dtype=float)
@@ -105,7 +107,8 @@ def describe_twins(ids: Sequence[str], working: ArrayLike, groups: Sequence[Sequ
         " and ".join(repr(ids[i]) for i in g) + f" ({float(np.ptp(x[g], axis=0).max()):.3g}"
         f"{unit} apart)" for g in groups[:3])
     more = f"; and {len(groups) - 3} more" if len(groups) > 3 else ""
+    flat = " (in x, y: a 2D registration does not see z)" if x.shape[1] == 2 else ""
     return (f"{len(groups)} point(s) measured under two or more ids, the same place in both "
-            f"frames: {shown}{more}: one hole under two names (a case or a space apart, two "
-            f"sheets merged)? merge them under one id; cross-validation holds each group out "
-            f"together")
+            f"frames{flat}: {shown}{more}: one hole under two names (a case or a space apart, "
+            f"two sheets merged)? then merge them under one id; cross-validation holds each "
+            f"group out together")

@@ -117,9 +117,9 @@ def check_int(name: str, value: Any, minimum: int) -> int:
 
 def check_number(name: str, value: Any, bound: float = math.inf) -> float:
     """A finite real number (not a bool, not a string) within ±``bound``."""
-    if isinstance(value, str) and _DECIMAL.fullmatch(value.strip()):
+    if isinstance(value, str) and re.fullmatch(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+", value):
         # PyYAML (YAML 1.1) reads a float only with a point and a signed exponent: 5e-05 and
-        # 1.5e5 are text
+        # 1.5e5 are text (a quoted '0.5' is text too, and says so as any string does)
         raise ValueError(f"{name}: must be a number, got {_quote(value)} (YAML 1.1 reads it as "
                          f"text: its floats need a decimal point and a signed exponent, e.g. "
                          f"5.0e-05 or 1.5e+05)")

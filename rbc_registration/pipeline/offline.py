@@ -75,9 +75,10 @@ def infer_dimension(inputs: Sequence[Input], targets: Sequence[PairMessage] = ()
     """2 when every z coordinate of the measurements is exactly 0, else 3.
 
     Only the measurements the node would take count: in ``working_frame`` and
-    ``destination_frame`` (default: the parameters' defaults; a pair's empty destination frame
-    is the parameter) with finite z; the targets never decide (dimension 2 passes a target's z
-    through), and a message in another frame, which is rejected, does not either.
+    ``destination_frame`` (default: the parameters' defaults; an empty frame id is the
+    parameter's, as the node takes it) with finite z; the targets never decide (dimension 2
+    passes a target's z through), and a message in another frame, which is rejected, does not
+    either.
 
     :return: the dimension and a sentence saying why.
     """
@@ -87,9 +88,9 @@ def infer_dimension(inputs: Sequence[Input], targets: Sequence[PairMessage] = ()
     for m in inputs:
         if isinstance(m, PointMessage):
             frame = working_frame if m.stream == WORKING else destination_frame
-            if m.frame_id == frame:
+            if (m.frame_id or frame) == frame:
                 zs.append(m.xyz[2])
-        elif m.working_frame == working_frame and \
+        elif (m.working_frame or working_frame) == working_frame and \
                 (m.destination_frame or destination_frame) == destination_frame:
             zs += [m.working[2], m.destination[2]]
     zs = [z for z in zs if math.isfinite(z)]

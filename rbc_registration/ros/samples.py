@@ -68,7 +68,10 @@ class SampleTaker:
         ``~/take_sample``."""
         with self._lock:
             for stream, latest in self._latest.items():
-                xyz, _, stamp = conv.point_stamped_to_tuple(latest.msg)
+                try:
+                    xyz, _, stamp = conv.point_stamped_to_tuple(latest.msg)
+                except RejectedMeasurement:     # a stamp that is not a time: never paired
+                    continue
                 key = (tuple(float(v) for v in xyz), float(stamp))
                 if any((p.working.xyz, p.working.stamp_s) == key if stream == WORKING else
                        (p.destination.xyz, p.destination.stamp_s) == key for p in pairs):
@@ -124,7 +127,11 @@ class SampleTaker:
              ) -> tuple[Optional[PairArgs], str, Any]:
         """The measurement to record now: ``(PairArgs, "", token)``, or ``(None, why not,
         None)`` naming the missing, stale or already recorded point. Once the pair is recorded,
-        pass ``token`` to :meth:`mark_sampled`."""
+        pass ``token`` to :meth:`mark_sampled`.
+
+        :raises RejectedMeasurement: ``malformed`` when a point's stamp is not a time (the caller
+            counts it as every rejected measurement is counted).
+        """
         now_ns = self._node.get_clock().now().nanoseconds
         with self._lock:
             latest = self._latest.get(WORKING)
@@ -146,11 +153,8 @@ class SampleTaker:
         errors = [p for p in (working, destination) if isinstance(p, str)]
         if errors:
             return None, "; ".join(errors), None
-        try:
-            (w, w_frame, stamp), (d, d_frame, _) = (conv.point_stamped_to_tuple(working),
-                                                    conv.point_stamped_to_tuple(destination))
-        except RejectedMeasurement as exc:      # a stamp that is not a time
-            return None, f"rejected ({exc.reason}): {exc.message}", None
+        (w, w_frame, stamp), (d, d_frame, _) = (conv.point_stamped_to_tuple(working),
+                                                conv.point_stamped_to_tuple(destination))
         return PairArgs(fiducial_id or None, w, d, w_frame, d_frame, stamp), "", latest
 
 

@@ -17,6 +17,7 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetF
 import re
 
 from ..core.constants import WORKING
+from ..core.records import RejectedMeasurement
 from ..core.scale import unit_mismatch
 from ..pipeline.residuals import fiducial_residuals
 from ..pipeline.snapshot import snapshot_path
@@ -184,7 +185,11 @@ class ServicesMixin:
 
     def _on_take_sample(self, request: TakeSample.Request,
                         response: TakeSample.Response) -> TakeSample.Response:
-        args, error, taken = self._samples.pair(request.fiducial_id, self._settings)
+        try:
+            args, error, taken = self._samples.pair(request.fiducial_id, self._settings)
+        except RejectedMeasurement as exc:      # a point's stamp is not a time: counted
+            self._ingest.reject(exc)
+            args, error, taken = None, f"rejected ({exc.reason}): {exc.message}", None
         record = None
         if args is not None:
             record, error = self._ingest.take(args)

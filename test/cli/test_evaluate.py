@@ -154,7 +154,10 @@ def test_a_rejected_message_or_a_target_does_not_make_a_2d_bag_3d(tmp_path, caps
                        (0.1, 0.2, 0.5), "X", "world", (0.1, 0.2, 0.5))
     targets = [m._replace(xyz=m.xyz[:2] + (0.001,)) if m.topic == DEFAULT_TOPICS.targets
                else m for m in msgs]
-    for name, bag_msgs in (("stray", [msgs[0], stray] + msgs[1:]), ("target_z", targets)):
+    # and one with empty frame ids, which the node takes as its frames (a review)
+    unframed = [m._replace(frame_id="", destination_frame="") for m in msgs]
+    for name, bag_msgs in (("stray", [msgs[0], stray] + msgs[1:]), ("target_z", targets),
+                           ("unframed", unframed)):
         write_bag(tmp_path / name, bag_msgs, progress=False)
         assert cli.main(["evaluate", str(tmp_path / name), "--quiet"]) == 0, name
         assert "dimension 2: every z of the measurements is 0" in capsys.readouterr().out

@@ -89,6 +89,24 @@ class TestTakeSample(NodeTestBase):
         assert not r.success and "rejected (frame)" in r.message and "'laser'" in r.message
         assert node.status().n_rejected_frame == 1 and node.status().n_measurements == 3
 
+    def test_a_point_whose_stamp_is_not_a_time_is_rejected_and_counted(self):
+        """A review: a latest point with nanosec >= 1e9 answered "rejected (malformed)" but was
+        not counted in n_rejected_malformed, as every other rejected measurement is."""
+        node = self.make_node(point_mode="sample", sample_max_age=60.0)
+        self.send(node, "destination_point", self.cell["destination"][0], "world")
+        pub = self.publisher(node, PointStamped, "working_point")
+        msg = _point(self.cell["working"][0], "tracker")
+        msg.header.stamp.nanosec = 2_000_000_000
+        pub.publish(msg)
+        wait_for(lambda: node._samples._latest.get("working") is not None, what="received")
+        self.ros.client.destroy_publisher(pub)
+        r = self.take(node, "H00")
+        assert not r.success and "rejected (malformed)" in r.message
+        assert "header.stamp.nanosec must be below 10^9" in r.message
+        assert node.status().n_rejected_malformed == 1 and node.status().n_measurements == 0
+        self.send(node, "working_point", self.cell["working"][0], "tracker")
+        assert self.take(node, "H00").success
+
     def test_a_stale_point_is_named(self):
         node = self.make_node(point_mode="sample", sample_max_age=1e-6)
         self.send(node, "working_point", self.cell["working"][0], "tracker")
