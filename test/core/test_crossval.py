@@ -154,6 +154,8 @@ def test_one_point_under_two_ids_is_held_out_together():
     line = describe_twins(ids, w, groups, "mm")
     assert line.startswith("40 point(s) measured under two or more ids, the same place in both "
                            "frames: 'F00' and 'f00' (")
+    assert "frames (in x, y: a 2D registration does not see z): " in \
+        describe_twins(ids, w[:, :2], groups, "mm")
     assert cross_validate(w, d, ["uncorrected"]).scheme.describe() == "leave-one-out (40 folds)"
     model = build_model(w, d, ModelConfig(dimension=3), ids=ids)
     assert not model.decision.apply, model.decision.reason
