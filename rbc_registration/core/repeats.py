@@ -55,14 +55,19 @@ def typical_spacing(points: ArrayLike) -> float:
 TWIN_FRACTION = 0.01
 
 
+#: The neighbour whose median distance is the spacing of :func:`twin_groups` (the fourth: up to
+#: four ids at one place do not shrink it).
+TWIN_NEIGHBOUR = 4
+
+
 def twin_groups(working: ArrayLike, destination: ArrayLike,
                 fraction: float = TWIN_FRACTION) -> list[list[int]]:
     """Groups (two or more indices, ascending) of fiducials closer than ``fraction`` x the
     spacing to one another in both frames: one point under several ids.
 
-    The spacing of each frame is the median distance from a point to its second-nearest
-    neighbour, which twins do not shrink even when every fiducial has one (the nearest is then
-    the twin). Cross-validation holds a group out together (else each twin predicts the other
+    The spacing of each frame is the median distance from a point to its fourth-nearest
+    neighbour, which twins (up to four ids at one place) do not shrink even when every
+    fiducial has them (the nearest are then the twins). Cross-validation holds a group out together (else each twin predicts the other
     and the held-out errors look far better than the corrections are).
 
     :return: the groups, in order of their first index; empty when there are none.
@@ -71,10 +76,11 @@ def twin_groups(working: ArrayLike, destination: ArrayLike,
     y = np.asarray(destination, dtype=float)
     if len(x) < 3:
         return []
+    k = min(TWIN_NEIGHBOUR, len(x) - 1)
     limits = []
     for p in (x, y):
-        dist, _ = cKDTree(p).query(p, k=3)
-        limits.append(fraction * float(np.median(dist[:, 2])))
+        dist, _ = cKDTree(p).query(p, k=k + 1)
+        limits.append(fraction * float(np.median(dist[:, k])))
     if not min(limits) > 0:
         return []
     parent = list(range(len(x)))
