@@ -67,8 +67,9 @@ def twin_groups(working: ArrayLike, destination: ArrayLike,
 
     The spacing of each frame is the median distance from a point to its fourth-nearest
     neighbour, which twins (up to four ids at one place) do not shrink even when every
-    fiducial has them (the nearest are then the twins). Cross-validation holds a group out together (else each twin predicts the other
-    and the held-out errors look far better than the corrections are).
+    fiducial has them (the nearest are then the twins). Cross-validation holds a group out
+    together (else each twin predicts the other and the held-out errors look far better than
+    the corrections are).
 
     :return: the groups, in order of their first index; empty when there are none.
     """

@@ -164,6 +164,22 @@ def test_a_fifo_or_directory_in_place_of_a_bag_file_is_refused_not_waited_on(tmp
         read_bag(meta, progress=False)
 
 
+def test_a_topic_renamed_in_metadata_yaml_alone_is_refused_not_lost(tmp_path, bags):
+    """A review: renaming a topic in metadata.yaml (not in the .db3) made rosbags read nothing
+    of it; the targets vanished with warnings: [] and only a 'messages lost?' note."""
+    bag = tmp_path / "renamed"
+    shutil.copytree(bags["sqlite3"], bag)
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("name: /registration_node/targets",
+                                             "name: /registration_node/targetz"))
+    with pytest.raises(BagError, match=r"metadata.yaml and the storage disagree on the topics: "
+                                       r"with messages only in the storage: /registration_node/"
+                                       r"targets \[rbc_registration_interfaces/msg/FiducialPair\]; "
+                                       r"only in metadata.yaml: /registration_node/targetz"):
+        read_bag(bag, progress=False)
+    read_bag(bags["sqlite3"], progress=False)      # the bag as written reads
+
+
 def test_corrupt_message_payload(tmp_path):
     """A message whose bytes do not decode as its type."""
     store = typestore.make_typestore()

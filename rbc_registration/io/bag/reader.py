@@ -11,7 +11,7 @@ import math
 import sqlite3
 import struct
 import sys
-from contextlib import contextmanager
+from contextlib import closing, contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator, Optional, Sequence, Union
 
@@ -72,6 +72,12 @@ def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
         reader.open()
     except _READ_ERRORS as exc:
         raise BagError(f"bag {p}: cannot open (truncated or corrupt?): {_describe(exc)}") from None
+    if p.is_dir():
+        try:
+            _check_db3_topics(p, reader)
+        except BagError:
+            reader.close()
+            raise
     try:
         yield reader
     finally:
@@ -79,6 +85,41 @@ def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
             reader.close()
         except _READ_ERRORS:
             pass
+
+
+def _check_db3_topics(bag: Path, reader: Reader) -> None:
+    """Every topic (name, type) with messages in a ``.db3`` file of a bag directory must be one
+    its ``metadata.yaml`` lists, which rosbags reads the storage by: a hand-edited metadata (a
+    topic "renamed" there) made a topic's messages vanish with only a count note.
+
+    :raises BagError: naming what each side has that the other has not.
+    """
+    listed = {(c.topic, c.msgtype) for c in reader.connections}
+    stored: set[tuple[str, str]] = set()
+    unread: set[tuple[str, str]] = set()     # in the storage with messages, not in the metadata
+    for f in storage_files(bag):
+        if f.suffix != ".db3" or not f.is_file():
+            continue
+        try:
+            with closing(sqlite3.connect(f"file:{f}?mode=ro", uri=True)) as db:
+                for topic_id, name, msgtype in db.execute("SELECT id, name, type FROM topics"):
+                    key = (str(name), str(msgtype))
+                    stored.add(key)
+                    if key not in listed and db.execute(
+                            "SELECT EXISTS(SELECT 1 FROM messages WHERE topic_id = ?)",
+                            (topic_id,)).fetchone()[0]:
+                        unread.add(key)
+        except sqlite3.Error:
+            return                      # not readable this way: rosbags has opened it
+    if not unread:
+        return                          # a listed topic the storage lacks: count_mismatches
+    only_stored = ", ".join(f"{n} [{t}]" for n, t in sorted(unread))
+    only_listed = ", ".join(f"{n} [{t}]" for n, t in sorted(listed - stored)) or "none"
+    raise BagError(f"bag {bag}: metadata.yaml and the storage disagree on the topics: with "
+                   f"messages only in the storage: {only_stored}; only in metadata.yaml: "
+                   f"{only_listed} (a "
+                   f"hand-edited metadata.yaml? rosbag2 writes both alike; rosbags reads the "
+                   f"storage by the metadata's names)")
 
 
 def _describe(exc: BaseException) -> str:
