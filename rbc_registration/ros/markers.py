@@ -52,9 +52,11 @@ def markers_msg(state: ModelState, settings: Settings, now: Time,
                 disabled_points: Mapping[str, Sequence[float]] = {}) -> MarkerArray:
     """``~/markers`` in the destination frame: DELETEALL, the enabled fiducials (green sphere
     list), the disabled ones (grey sphere list, each labelled ``disabled: <id>`` at its mean
-    destination point), and an arrow along each enabled fiducial's correction mapped by R_c,
-    drawn ``marker_arrow_gain`` times longer than the correction. Labels and arrows together are
-    at most ``max_markers``: labels first, then the arrows of the largest corrections.
+    destination point), and from each enabled fiducial's destination point an arrow along the
+    shift its correction applies (the corrected point is x - eps: -R_c eps in the destination
+    frame), drawn ``marker_arrow_gain`` times longer than the correction. Labels and arrows
+    together are at most ``max_markers``: labels first, then the arrows of the largest
+    corrections.
 
     :param disabled_points: mean destination point (2 or 3 coordinates) of each disabled
         fiducial, by id (:meth:`~rbc_registration.pipeline.ingest.Ingest.disabled_points`).
