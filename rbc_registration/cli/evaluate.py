@@ -139,11 +139,8 @@ def run(args: argparse.Namespace) -> int:
         print("evaluate: interrupted", file=sys.stderr)
         return 130
     print_summary(ev)
-    from ..core.repeats import describe_twins, twin_groups
     from ..core.scale import implausible_metres
     large = implausible_metres(ev.model.destination)
-    twins = describe_twins(ev.model.ids, ev.model.working,
-                           twin_groups(ev.model.working, ev.model.destination), "m")
     ambiguous = ambiguous_points_line(ev, topics.working_point, topics.destination_point)
     # Every warning goes to stderr and into report.json / report.md (the blunder line is the
     # model state's, ev.warnings already).
@@ -152,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         if settings.point_mode == "sample" and any(isinstance(m, PointMessage)
                                                    for m in contents.inputs) else ""
     duplicates = duplicates_line(ev, f"bag {contents.path}")
-    ev = with_warnings(ev, [w for w in (duplicates, sample, ambiguous, large, twins) if w]
+    ev = with_warnings(ev, [w for w in (duplicates, sample, ambiguous, large) if w]
                        + unit_mismatch_lines(
                            ev.model.working,
                            ev.targets.working if ev.targets is not None else None, ev.report,

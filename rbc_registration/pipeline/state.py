@@ -13,6 +13,7 @@ from ..core.accumulator import FiducialSet
 from ..core.evaluation import blunders, describe_blunders, describe_misfits, gross_misfits
 from ..core.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
+from ..core.repeats import describe_twins, twin_groups
 from .settings import Settings
 
 
@@ -23,7 +24,8 @@ class ModelState:
 
     ``warning``: what to check in a model that is served, one line, "" when nothing: a fiducial
     whose held-out error stands out (:func:`~rbc_registration.core.evaluation.blunders`, a
-    typo'd coordinate or a wrong hole; errors in metres).
+    typo'd coordinate or a wrong hole; errors in metres), one point under two or more ids
+    (:func:`~rbc_registration.core.repeats.twin_groups`).
     """
 
     model: Optional[RbcModel]
@@ -98,7 +100,10 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
     # The status and the snapshot report every sigma_L (computed on first access, O(J^2)): here,
     # in the recompute thread, rather than on the executor at the first status.
     _ = model.restoration.sigma_l
-    warning = "; ".join(filter(None, (left_out, describe_blunders(blunders(model), "m"))))
+    twins = describe_twins(model.ids, model.working,
+                           twin_groups(model.working, model.destination), "m")
+    warning = "; ".join(filter(None, (left_out, describe_blunders(blunders(model), "m"),
+                                      twins)))
     return ModelState(model, fiducials, settings, "", stamp_ns, warning)
 
 

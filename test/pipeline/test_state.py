@@ -64,3 +64,18 @@ def test_warm_start_passes_the_served_kriging_hyperparameters():
     np.testing.assert_allclose(again.model.kriging_hyperparameters, hyper, rtol=1e-3)
     assert warm_start(build_state(acc.fiducial_set(), settings.replace(min_fiducials=100), 3)) \
         is None
+
+
+def test_one_point_under_two_ids_is_the_served_models_warning():
+    """The node says it too (~/status message, the log), not only the CLI: the state's
+    warning names one point measured under two ids ('H01' and 'H01 ' from two drivers)."""
+    rng = np.random.default_rng(1)
+    acc = FiducialAccumulator(3, "tracker", "world", 1e-6, 0.0)
+    grid = np.array([[x, y, z] for x in (0, .3, .6) for y in (0, .3) for z in (0, .2)], float)
+    for k, p in enumerate(grid):
+        acc.add(f"H{k:02d}", p + rng.normal(0, 1e-4, 3), p + 1.0)
+    acc.add("H01 ", grid[1] + rng.normal(0, 1e-6, 3), grid[1] + 1.0)
+    state = build_state(acc.fiducial_set(), Settings.from_mapping({}), 1)
+    assert state.error == ""
+    assert ("1 point(s) measured under two or more ids, the same place in both frames: 'H01' "
+            "and 'H01 ' (") in state.warning
