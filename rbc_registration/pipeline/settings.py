@@ -162,7 +162,7 @@ SPECS: dict[str, Spec] = {
                                       "sample_tf_child in sample_tf_parent, looked up now; needs "
                                       "tf2_ros).", choices=SAMPLE_SOURCES),
     "sample_tf_parent": Spec("", "tf frame the destination point of a tf sample is expressed "
-                             "in; empty = destination_frame."),
+                             "in; empty = destination_frame, the one other value accepted."),
     "sample_tf_child": Spec("", "tf frame whose origin is the destination point of a tf sample "
                             "(e.g. the robot TCP or the tracker target); must be set for 'tf'."),
     "marker_scale": Spec(0.01, "Diameter [m] of the fiducial spheres in ~/markers.",
@@ -308,6 +308,12 @@ def validate(values: Mapping[str, Any]) -> Optional[str]:
                               get("working_frame"))
     if same:
         return f"working_frame {same}"
+    if get("sample_tf_parent") not in ("", get("destination_frame")):
+        return (f"sample_tf_parent must be empty or destination_frame "
+                f"{get('destination_frame')!r}, got {get('sample_tf_parent')!r}: a tf "
+                f"sample's destination point is recorded in the destination frame (tf "
+                f"looks sample_tf_child up there directly; the accumulator would reject "
+                f"every sample in another frame)")
     if get("sample_tf_child"):
         parent = "sample_tf_parent" if get("sample_tf_parent") else \
             "sample_tf_parent (empty: destination_frame)"

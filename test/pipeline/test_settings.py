@@ -105,8 +105,12 @@ def test_config_file_lists_every_parameter_with_a_valid_value():
      "working_frame must differ from destination_frame, both are 'world'"),
     ({"sample_tf_child": "world"},
      r"sample_tf_child must differ from sample_tf_parent \(empty: destination_frame\)"),
-    ({"sample_tf_parent": "base", "sample_tf_child": "base"},
-     "sample_tf_child must differ from sample_tf_parent, both are 'base'"),
+    ({"sample_tf_parent": "world", "sample_tf_child": "world"},
+     "sample_tf_child must differ from sample_tf_parent, both are 'world'"),
+    # the accumulator rejects a sample in another frame than destination_frame: refused early
+    ({"sample_tf_parent": "base_link"},
+     "sample_tf_parent must be empty or destination_frame 'world', got 'base_link': a tf "
+     "sample's destination point is recorded in the destination frame"),
     ({"sample_tf_child": "tracker"},
      "sample_tf_child must not be working_frame 'tracker': a tf sample's destination point "
      "would be the working frame's origin, which is the registration itself"),

@@ -77,6 +77,8 @@ BAD_PARAMETERS = [
      "it), got '/base_link'"),
     ("sample_tf_child-space", "sample_tf_child", "tool 0",
      "sample_tf_child is a tf frame id (or empty): it must not contain whitespace"),
+    ("sample_tf_parent-other", "sample_tf_parent", "base_link",
+     "sample_tf_parent must be empty or destination_frame 'world', got 'base_link'"),
     ("sample_tf_child-working", "sample_tf_child", "tracker",
      "sample_tf_child must not be working_frame 'tracker'"),
     ("sample_tf_child-same", "sample_tf_child", "world",
