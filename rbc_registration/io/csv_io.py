@@ -250,7 +250,8 @@ def _copied_runs(rows: list[tuple[int, tuple[Optional[str], ...]]]) -> list[tupl
     row it copies), in row order. ``text`` starts with the id."""
     if not rows:
         return []
-    need = max(min(COPY_RUN, len({text[0] for _, text in rows})), 2)
+    n_ids = len({text[0] for _, text in rows})
+    need = max(min(COPY_RUN, n_ids), 2)
     seen: dict[tuple[Optional[str], ...], list[int]] = {}
     run: dict[int, int] = {}         # earlier index q -> length of the run ending at (i, q)
     best: list[tuple[int, int]] = []  # per row: (run length, the q of it)
@@ -265,11 +266,10 @@ def _copied_runs(rows: list[tuple[int, tuple[Optional[str], ...]]]) -> list[tupl
         if len(earlier) > 2 * COPY_MATCHES:     # linear time for many equal rows
             del earlier[:COPY_MATCHES]
     copies: dict[int, int] = {}
-    several_ids = len({text[0] for _, text in rows}) > 1
     for i in range(len(rows) - 1, -1, -1):
         n, q = best[i]
         # a run of one id's rows is its repeats at a coarse rounding, not a copied block
-        if n >= need and (not several_ids or len({rows[i - k][1][0] for k in range(n)}) > 1):
+        if n >= need and (n_ids == 1 or len({rows[i - k][1][0] for k in range(n)}) > 1):
             for k in range(n):
                 copies.setdefault(i - k, q - k)
     return [(rows[i][0], rows[q][0]) for i, q in sorted(copies.items())]

@@ -317,7 +317,7 @@ def validate(values: Mapping[str, Any]) -> Optional[str]:
     if get("sample_tf_child"):
         parent = "sample_tf_parent" if get("sample_tf_parent") else \
             "sample_tf_parent (empty: destination_frame)"
-        same = same_frame_problem(parent, get("sample_tf_parent") or get("destination_frame"),
+        same = same_frame_problem(parent, get("destination_frame"),   # the parent (above)
                                   get("sample_tf_child"),
                                   "a tf sample's destination point is the origin of "
                                   "sample_tf_child in sample_tf_parent: in itself always 0")

@@ -24,7 +24,7 @@ from ...core.measurement_checks import stamp_seconds
 from ...core.records import RejectedMeasurement
 from ...pipeline.files import NotARegularFile, check_input_file
 from ..progress import Progress
-from .mcap_crc import check_mcap, mcap_files, storage_files
+from .mcap_crc import check_mcap, storage_files
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
 from .typestore import check_definitions, make_typestore
@@ -54,15 +54,18 @@ def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
         raise BagError(f"bag {p}: no such file or directory")
     if p.is_dir() and not (p / "metadata.yaml").exists():
         raise BagError(f"bag {p}: not a rosbag2 directory (no metadata.yaml)")
+    files = storage_files(p)             # metadata.yaml read once for the checks below
     # a FIFO (or a device) as the metadata or a storage file would block open() for ever
-    for f in ([p / "metadata.yaml"] if p.is_dir() else []) + storage_files(p):
+    for f in ([p / "metadata.yaml"] if p.is_dir() else []) + files:
         try:
             check_input_file(str(f), sys.maxsize)
         except NotARegularFile as exc:
             raise BagError(f"bag {p}: {exc}") from None
         except OSError:
             pass                        # missing or unreadable: opening it below says so
-    for f in mcap_files(p):
+    for f in files:
+        if f.suffix != ".mcap" or not f.is_file():
+            continue
         try:
             check_mcap(f)
         except OSError:
@@ -74,7 +77,7 @@ def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
         raise BagError(f"bag {p}: cannot open (truncated or corrupt?): {_describe(exc)}") from None
     if p.is_dir():
         try:
-            _check_db3_topics(p, reader)
+            _check_db3_topics(p, reader, files)
         except BagError:
             reader.close()
             raise
@@ -87,17 +90,18 @@ def open_bag(path: Union[str, Path]) -> Iterator[Reader]:
             pass
 
 
-def _check_db3_topics(bag: Path, reader: Reader) -> None:
+def _check_db3_topics(bag: Path, reader: Reader, files: Sequence[Path]) -> None:
     """Every topic (name, type) with messages in a ``.db3`` file of a bag directory must be one
     its ``metadata.yaml`` lists, which rosbags reads the storage by: a hand-edited metadata (a
     topic "renamed" there) made a topic's messages vanish with only a count note.
 
+    :param files: the bag's storage files (:func:`~.mcap_crc.storage_files`).
     :raises BagError: naming what each side has that the other has not.
     """
     listed = {(c.topic, c.msgtype) for c in reader.connections}
     stored: set[tuple[str, str]] = set()
     unread: set[tuple[str, str]] = set()     # in the storage with messages, not in the metadata
-    for f in storage_files(bag):
+    for f in files:
         if f.suffix != ".db3" or not f.is_file():
             continue
         try:
