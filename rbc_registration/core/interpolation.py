@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from .sector_grid import GRID_MIN_TARGETS, SectorIndex
-from .sectors import on_fiducial_tolerance, sector_weights
+from .sectors import on_fiducial_tolerance, one_target_weights, sector_weights
 from .validation import as_point_pairs, as_points
 
 #: A simplex whose reciprocal condition number (infinity norm) is below this has no transform
@@ -191,6 +191,7 @@ class PaperInterpolator:
                              f"spanning a {'volume' if self.dim == 3 else 'area'}; use "
                              f"{'dimension 2 or ' if self.dim == 3 else ''}kriging")
         self.tree = cKDTree(self.points)
+        self._on_fiducial = on_fiducial_tolerance(self.points)
         self._sector_index: Optional[SectorIndex] = None
         # 3D: the tetrahedra's vertices as index arrays, converted once.
         self._vertices = self.hull.tri.simplices.astype(np.intp) if self.dim == 3 else None
@@ -225,7 +226,7 @@ class PaperInterpolator:
     def _idw(self, t: NDArray[np.float64], k: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         dist, idx = self.tree.query(t, k=min(k, len(self.points)))
         dist, idx = np.atleast_2d(dist), np.atleast_2d(idx)
-        hit = dist[:, :1] <= on_fiducial_tolerance(self.points)
+        hit = dist[:, :1] <= self._on_fiducial
         w = np.where(hit, (np.arange(idx.shape[1]) == 0).astype(float),
                      1.0 / np.maximum(dist, 1e-300))
         return idx, w / w.sum(axis=1, keepdims=True)
@@ -255,6 +256,8 @@ class PaperInterpolator:
     def _sectors(self, t: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """The 8-sector rule (:mod:`.sectors`); batches use its grid (:mod:`.sector_grid`),
         built on first use."""
+        if len(t) == 1:
+            return one_target_weights(self.tree, self.points, t, self._on_fiducial)
         if len(t) < GRID_MIN_TARGETS:
             return sector_weights(self.tree, self.points, t)
         if self._sector_index is None:

@@ -15,6 +15,9 @@ sector that holds no fiducial at all (:class:`EmptySectors`) is empty whatever t
 targets with a sector settled by neither take the next query, and the last is the rule itself;
 so does a target on a fiducial.
 
+:func:`one_target_weights` is the rule for one target (the node's ``~/correct_target``), the same
+weights in floats instead of (64, 8) arrays.
+
 :class:`.sector_grid.SectorIndex` gives exactly the same weights for most targets of a batch
 at a fraction of the cost (the grid path; its module docstring says how), and the staged path for
 the others.
@@ -105,6 +108,33 @@ def sector_weights(tree: cKDTree, points: NDArray[np.float64], targets: NDArray[
     idx[on] = cand[on, :1]
     w[on] = np.eye(SECTORS)[0]
     return idx, w / w.sum(axis=1, keepdims=True)
+
+
+def one_target_weights(tree: cKDTree, points: NDArray[np.float64], target: NDArray[np.float64],
+                       on_tolerance: float) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """:func:`sector_weights` of one target (1, 2), bit for bit, in about half the time (the
+    node's single target: the rule's 64-neighbour query, then the sectors by the formula itself
+    and each sector's first candidate in query order, in floats instead of (64, 8) arrays).
+    ``on_tolerance``: :func:`on_fiducial_tolerance` of ``points``."""
+    k = min(SECTOR_CANDIDATES, len(points))           # >= 3: a 2D hull has 3 fiducials
+    dist, cand = tree.query(target[0], k=k)
+    delta = points[cand] - target[0]
+    sector = _sector_formula(delta[:, 0], delta[:, 1]).tolist()
+    fiducials, near = cand.tolist(), dist.tolist()
+    idx = [fiducials[0]] * SECTORS          # an empty sector: the nearest fiducial, weight 0
+    if near[0] <= on_tolerance:             # on a fiducial: that fiducial alone
+        return np.array([idx], dtype=np.intp), np.eye(1, SECTORS)
+    w = [0.0] * SECTORS
+    left = SECTORS
+    for i, s in enumerate(sector):          # candidates sorted by distance: the first wins
+        if not w[s]:
+            w[s] = 1.0 / max(near[i], 1e-300)
+            idx[s] = fiducials[i]
+            left -= 1
+            if not left:
+                break
+    w = np.array(w)
+    return np.array([idx], dtype=np.intp), (w / w.sum())[None, :]
 
 
 # Boundary directions of each sector s: from s pi/4 - pi/8 (included) to s pi/4 + pi/8.

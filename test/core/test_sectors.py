@@ -221,3 +221,34 @@ def test_grid_cells_are_prepared_once_and_kept():
     prepared = index._used                # every cell hit, now 8 times
     index.weights(t)
     assert 0 < once < prepared and index._used == prepared
+
+
+@pytest.mark.parametrize("case", ["uniform", "grid", "boundary", "few", "far-offset"])
+def test_one_target_path_equals_reference(case):
+    """One target (the node's): :func:`sectors.one_target_weights` and the interpolator's single
+    call are bit for bit the reference, on ties, midpoints, sector boundaries and fiducials."""
+    rng = np.random.default_rng(len(case) + 40)
+    if case == "grid":
+        pts = grid(17, 21)
+        targets = np.concatenate([pts[::7], pts[:-1:5] + [12.5, 0.0], pts[:-1:3] + [12.5, 12.5],
+                                  pts[::11] + [0.0, 1e-13], spread_targets(pts, 300, rng)])
+    elif case == "boundary":
+        pts = rng.uniform(0, 1, (200, 2))
+        ang = np.pi / 8 + np.pi / 4 * rng.integers(0, 8, 300)
+        r = rng.uniform(0.01, 0.2, 300)
+        targets = pts[rng.integers(0, 200, 300)] - r[:, None] * np.c_[np.cos(ang), np.sin(ang)]
+    else:
+        j = {"uniform": 1000, "few": 5, "far-offset": 300}[case]
+        pts = rng.uniform(0, 1, (j, 2)) + (6.4e6 if case == "far-offset" else 0.0)
+        targets = np.concatenate([spread_targets(pts, 400, rng, margin=0.5), pts[:10]])
+    eps = rng.normal(size=pts.shape)
+    ip = PaperInterpolator(pts, eps)
+    tree = cKDTree(pts)
+    tol = sectors.on_fiducial_tolerance(pts)
+    for t in targets:
+        ref_idx, ref_w = reference_sectors(pts, t[None])
+        idx, w = sectors.one_target_weights(tree, pts, t[None], tol)
+        np.testing.assert_array_equal(w, ref_w)
+        np.testing.assert_array_equal(idx, ref_idx)
+        np.testing.assert_array_equal(ip(t[None]).correction,
+                                      np.einsum("km,kmd->kd", ref_w, eps[ref_idx]))
