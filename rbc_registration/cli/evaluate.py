@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..io.escape import terminal
-from .options import (add_model_options, node_name, refuse_outputs_onto_inputs,
+from .options import (add_model_options, node_name, output_file, refuse_outputs_onto_inputs,
                       unit_mismatch_lines, warn)
 
 #: The input topics that can be named, with what they carry.
@@ -26,7 +26,7 @@ def add_parser(sub: Any) -> None:
     ev.add_argument("bag", type=Path, help="rosbag2 directory, .mcap or .db3 file (metres)")
     ev.add_argument("--targets", type=Path, metavar="TARGETS.csv",
                     help="CSV in metres: id,wx,wy[,wz][,dx,dy[,dz]] (default: the targets topic)")
-    ev.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
+    ev.add_argument("--json", type=output_file, metavar="OUT.json", help="write the report as JSON")
     ev.add_argument("--out", type=Path, metavar="DIR",
                     help="write report.json, report.md and PNG figures here")
     add_model_options(ev, "default: 2 when every z of the measurements is 0, else 3", "m",

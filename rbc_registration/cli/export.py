@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from ..io.escape import terminal
-from .options import refuse_outputs_onto_inputs
+from .options import output_file, refuse_outputs_onto_inputs
 
 #: Largest report or snapshot read (a snapshot of 100,000 fiducials is ~30 MB).
 MAX_SOURCE_BYTES = 256 << 20
@@ -22,7 +22,7 @@ def add_parser(sub: Any) -> None:
     exp.add_argument("source", type=Path, metavar="SNAPSHOT_OR_REPORT.json",
                      help="state_dir/calibration.json of the node, or a register/evaluate --json "
                           "report")
-    exp.add_argument("--out", type=Path, default=Path("calibration.yaml"),
+    exp.add_argument("--out", type=output_file, default=Path("calibration.yaml"),
                      help="the calibration file to write (default calibration.yaml)")
     exp.add_argument("--registration", choices=("corrected", "uncorrected"), default="corrected",
                      help="which registration of the model (default corrected)")

@@ -21,6 +21,15 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {terminal(message)} (see --help)\n")
 
 
+def output_file(text: str) -> Path:
+    """An argument type: the path of a file to write. A name ending in a path separator names a
+    directory (``Path`` drops the separator, and ``--json out/`` wrote a file ``out``)."""
+    if not text or text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"{text!r} names a directory, not a file: add the "
+                                         f"file's name")
+    return Path(text)
+
+
 def _number(text: str) -> float:
     try:
         return float(text)

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from ..io.escape import terminal
-from .options import add_model_options, non_negative, refuse_outputs_onto_inputs, warn
+from .options import (add_model_options, non_negative, output_file, refuse_outputs_onto_inputs,
+                      warn)
 
 #: Suggestions made when ``--count`` is not given (fewer when there are fewer candidates).
 DEFAULT_COUNT = 5
@@ -54,8 +55,8 @@ def add_parser(sub: Any) -> None:
                         "rows per id of TARGETS.csv; without it, as --candidate-repeats)")
     p.add_argument("--unit", default="mm",
                    help="unit of the files (default mm): named in the report")
-    p.add_argument("--json", type=Path, metavar="OUT.json", help="write the plan as JSON")
-    p.add_argument("--figure", type=Path, metavar="OUT.png",
+    p.add_argument("--json", type=output_file, metavar="OUT.json", help="write the plan as JSON")
+    p.add_argument("--figure", type=output_file, metavar="OUT.png",
                    help="draw the candidates by expected gain and the expected error against "
                         "the fiducial count")
     p.set_defaults(func=run, uncorrected_fit=None, corrected_fit=None)
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from .register import model_config
 
     if args.figure is not None and (args.figure.suffix.lower() != ".png"
-                                    or str(args.figure).endswith("/") or args.figure.is_dir()):
+                                    or args.figure.is_dir()):
         # matplotlib would add ".png" itself and write beside what was named
         raise ValueError(f"--figure {terminal(args.figure)}: must name a .png file")
     refuse_outputs_onto_inputs([("--json", args.json), ("--figure", args.figure)],

@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 from ..io.escape import terminal
-from .options import (add_model_options, name_list, non_negative, refuse_outputs_onto_inputs, warn,
-                      warn_blunders, warn_unit_mismatch)
+from .options import (add_model_options, name_list, non_negative, output_file,
+                      refuse_outputs_onto_inputs, warn, warn_blunders, warn_unit_mismatch)
 
 if TYPE_CHECKING:   # imported when the subcommand runs (a fast --help)
     from ..core.model import ModelConfig
@@ -37,7 +37,8 @@ def add_parser(sub: Any) -> None:
     reg.add_argument("--unit", default="mm",
                      help="unit of the file (default mm): named in the report; export converts "
                      "to metres by it")
-    reg.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
+    reg.add_argument("--json", type=output_file, metavar="OUT.json",
+                     help="write the report as JSON")
     reg.set_defaults(func=run)
 
 

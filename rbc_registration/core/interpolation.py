@@ -188,7 +188,7 @@ class PaperInterpolator:
         if self.hull.flat:
             shape = "coplanar" if self.dim == 3 else "collinear"
             raise ValueError(f"fiducials are {shape}: the paper's interpolation needs fiducials "
-                             f"spanning a {'volume' if self.dim == 3 else 'area'}; use "
+                             f"spanning {'a volume' if self.dim == 3 else 'an area'}; use "
                              f"{'dimension 2 or ' if self.dim == 3 else ''}kriging")
         self.tree = cKDTree(self.points)
         self._on_fiducial = on_fiducial_tolerance(self.points)

@@ -34,6 +34,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
 
 from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
@@ -133,6 +134,23 @@ def check_near(points: NDArray[np.float64], fiducials: NDArray[np.float64], name
                          f"unit? ({far.size} such {name}(s))")
 
 
+def check_candidates_reach(candidates: NDArray[np.float64],
+                           fiducials: NDArray[np.float64]) -> None:
+    """:raises ValueError: when every candidate is farther from every fiducial than the
+        fiducials' size (the largest side of their box): a whole file in another frame, origin
+        or unit (the holes not yet measured include some next to the measured ones; a file
+        shifted by 14 cell sizes was planned, its gains meaningless).
+        :func:`check_near` cannot see it, since the candidates themselves set its centre."""
+    size = float((fiducials.max(axis=0) - fiducials.min(axis=0)).max())
+    nearest = cKDTree(fiducials).query(candidates, k=1)[0]
+    gap = float(np.min(nearest))
+    if gap > size:
+        raise ValueError(f"every candidate is at least {gap:.4g} from every fiducial, more than "
+                         f"the fiducials' size ({size:.4g}): are the candidates in another frame, "
+                         f"origin or unit? They must be in the working frame, like the "
+                         f"fiducials ({len(candidates)} candidates)")
+
+
 class MeasurementPlan(NamedTuple):
     """The ranked candidates and the stopping rule (lengths in the unit of the points).
 
@@ -214,10 +232,19 @@ def work_volume(points: ArrayLike, count: int = 400) -> NDArray[np.float64]:
     used = ext > 1e-12 * max(float(np.abs(p).max()), 1.0)
     if used.sum() < p.shape[1]:
         return p
-    h = (float(np.prod(ext)) / count) ** (1.0 / p.shape[1])
+    # The cell side h from the axes at least one cell thick: an axis thinner than h (a plate
+    # whose z spread is rounding) gets one cell and leaves the others ~count cells, instead of
+    # making h tiny and the grid unbounded (a 0.5 m plate 1e-8 thick asked for 11.8 GiB).
+    thick = np.ones(len(ext), dtype=bool)
+    while True:
+        h = (float(np.prod(ext[thick])) / count) ** (1.0 / int(thick.sum()))
+        thin = thick & (ext < h)
+        if not thin.any():
+            break
+        thick &= ~thin
     axes = []
     for a in range(p.shape[1]):
-        n = max(1, int(round(ext[a] / h)))
+        n = max(1, int(round(ext[a] / h))) if thick[a] else 1
         axes.append(lo[a] + (np.arange(n) + 0.5) * ext[a] / n)
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, p.shape[1])
     try:
@@ -309,6 +336,7 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     on_targets = targets is not None
     t = as_points(targets, "targets", d, 1) if on_targets else None
     check_near(c, x, "candidate", t)
+    check_candidates_reach(c, x)
     inv_n = inverse_repeats(repeats, len(x))
     n_cand, n_target = measurement_repeats(config, repeats)
     pts = t if on_targets else work_volume(np.vstack([x, c]), config.work_volume_points)

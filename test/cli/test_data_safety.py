@@ -139,3 +139,21 @@ def test_evaluate_json_onto_a_file_of_its_out_dir_is_refused(tmp_path, capsys, f
                      str(out / "report.md")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "one would overwrite the other" in err[0], err
+
+
+@pytest.mark.parametrize("sub", ["register", "plan", "plan-figure", "evaluate", "export"])
+def test_an_output_ending_in_a_separator_is_refused(tmp_path, capsys, files, sub):
+    """A review: ``--json out/`` wrote a file named ``out`` (``Path`` drops the separator)."""
+    out = str(tmp_path / "out") + os.sep
+    args = {"register": ["register", str(files["fid"]), "--json", out],
+            "plan": ["plan", str(files["fid"]), "--candidates", str(files["tgt"]), "--json", out],
+            "plan-figure": ["plan", str(files["fid"]), "--candidates", str(files["tgt"]),
+                            "--figure", out],
+            "evaluate": ["evaluate", str(files["bag"]), "--quiet", "--json", out],
+            "export": ["export", str(files["report"]), "--out", out]}[sub]
+    with pytest.raises(SystemExit) as stop:
+        cli.main(args)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "names a directory, not a file" in err[0], err
+    assert not (tmp_path / "out").exists()

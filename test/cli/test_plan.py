@@ -174,7 +174,7 @@ def test_candidates_in_another_unit_get_a_warning(tmp_path, ra):
      "--candidate-repeats: candidate_repeats must be a positive integer, got 0"),
     (["{fid}", "--candidates", "{far}"], "candidate 1 (1e+06, 0) is "),
     (["{fid}", "--candidates", "{cand}", "--figure", "plan"], "--figure plan: must name a .png"),
-    (["{fid}", "--candidates", "{cand}", "--figure", "out/"], "must name a .png file"),
+    (["{fid}", "--candidates", "{cand}", "--figure", "out/"], "names a directory, not a file"),
     (["{fid}", "--candidates", "{cand}", "--min-gain", "-1"],
      "min_gain_length must be a finite length >= 0, got -1.0"),
     (["{fid}", "--candidates", "{cand}", "--min-gain", "nan"], "min_gain_length must be"),

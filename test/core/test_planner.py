@@ -177,6 +177,25 @@ def test_a_point_far_outside_the_fiducials_is_refused(where):
         plan(x, args[0], em, args[1])
 
 
+
+@pytest.mark.parametrize("shift", [1.5, 3.0, 14.0])
+def test_candidates_in_another_frame_or_origin_are_refused(shift):
+    """A review: the holes shifted by `shift` cell sizes (another frame or origin) passed
+    check_near, since the candidates set its centre, and were planned with meaningless gains;
+    with targets, the (right) targets were the ones refused."""
+    rng = np.random.default_rng(6)
+    holes = grid(12, 0, 500, 2)
+    fid = holes[rng.choice(len(holes), 15, replace=False)]
+    em = ExpectedErrorModel.from_axis_std(0.1, 300.0, [0.05, 0.05])
+    plan(fid, holes, em)                                     # the same holes unshifted: planned
+    plan(fid, holes[holes[:, 0] > 300], em)                  # holes of one side only: planned
+    moved = holes + shift * 500.0
+    for targets in (None, rng.uniform(0, 500, (20, 2))):
+        with pytest.raises(ValueError, match=r"^every candidate is at least [\d.e+]+ from every "
+                                             r"fiducial, more than the fiducials' size .*another "
+                                             r"frame, origin or unit"):
+            plan(fid, moved, em, targets)
+
 def test_targets_in_another_unit_are_refused_even_when_they_outnumber_the_rest():
     """A review: 4 fiducials and 12 candidates in m, 80 targets in mm: the targets set the
     median of all points, and the plan was served."""
@@ -379,6 +398,18 @@ def test_work_volume_is_inside_the_hull():
     tri = work_volume(pts[:3], 50)        # d + 1 points are one simplex: the grid inside it
     assert len(tri) > 3 and np.all(tri.sum(axis=1) <= 4.0) and np.all(tri >= 0)
 
+
+
+@pytest.mark.parametrize("thickness", [1e-3, 1e-7, 1e-9])
+def test_work_volume_of_a_nearly_flat_plate_stays_near_its_count(thickness):
+    """A 0.5 m plate whose z spread is rounding: the grid keeps about ``count`` cells (before,
+    the thin axis made the cell side tiny: 156,057 points at 1e-3 m, a MemoryError at 1e-8)."""
+    rng = np.random.default_rng(5)
+    xy = grid(4, 0, 0.5, 2)
+    pts = np.column_stack([xy, rng.normal(scale=thickness, size=len(xy))])
+    wv = work_volume(pts, 400)
+    assert len(wv) <= 2 * 400
+    assert np.all(wv.min(axis=0) >= pts.min(axis=0)) and np.all(wv.max(axis=0) <= pts.max(axis=0))
 
 @pytest.fixture(scope="module")
 def ra_model():
