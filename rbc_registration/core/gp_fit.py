@@ -42,6 +42,16 @@ SEARCH_MAX_FIDUCIALS = 300
 #: pure noise).
 GRID_LENGTHS = 8
 GRID_NOISE_RATIOS = tuple(10.0 ** k for k in range(-6, 3))
+#: With the noise fitted (no sigma given), the length scale is at least this many times the
+#: fiducials' median nearest-neighbour distance. Single measurements cannot tell a field that
+#: varies between neighbouring fiducials from noise, and the likelihood then often prefers "no
+#: noise, l ~ half the spacing": kriging passes through every fiducial's noise, and leave-one-out
+#: cannot see it (a held-out fiducial is a spacing from the others, where such a field has faded
+#: to its mean), so the decision applied it confidently while targets near a fiducial got that
+#: fiducial's noise (1.21-1.40x the uncorrected TRE on 2D grids of 36, bias 0.3 x the noise; an
+#: independent review, benchmarks/RESULTS.md "Decision"). With sigma given the noise is known and
+#: the bound is spacing / 4.
+FITTED_NOISE_MIN_LENGTH = 1.0
 #: Relative diagonal jitter (of s^2) that keeps the covariance numerically positive definite.
 JITTER = 1e-10
 #: L-BFGS-B stops when the nll changes by less than FTOL (relative) or the projected gradient is
@@ -275,7 +285,10 @@ def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
     # extent: twice the largest distance from the centroid (invariant to rotations of the frame)
     extent = max(2.0 * float(np.linalg.norm(x - x.mean(axis=0), axis=1).max()), spacing)
     noise2 = None if sigma is None else float(sigma) ** 2 / d
-    bounds = [(math.log(1e-8), math.log(1e3)), (math.log(spacing / 4), math.log(extent * 10))]
+    shortest = spacing / 4
+    if noise2 is None:          # variation between neighbours is not told from noise
+        shortest = max(shortest, FITTED_NOISE_MIN_LENGTH * float(np.median(near)))
+    bounds = [(math.log(1e-8), math.log(1e3)), (math.log(shortest), math.log(extent * 10))]
     if noise2 is None:
         bounds.append((math.log(1e-12), math.log(1e2)))
 
@@ -288,7 +301,8 @@ def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
     search_idx = _subsample(x, SEARCH_MAX_FIDUCIALS)
     fit = likelihood(fit_idx)
     search = fit if len(search_idx) == len(fit_idx) else likelihood(search_idx)
-    grid = search.grid_search(np.geomspace(spacing / 2, extent * 3, GRID_LENGTHS))
+    grid = search.grid_search(np.geomspace(max(spacing / 2, shortest), max(extent, shortest) * 3,
+                                           GRID_LENGTHS))
     start = None if initial is None else _theta(initial, scale, noise2, d)
     if start is not None:
         best = _minimise(search, start, bounds)
