@@ -262,7 +262,10 @@ def unresolved_bias(fiducials: ArrayLike, error_model: ExpectedErrorModel) -> Op
     bias varies between them (a correlation shorter than the sampling is not identifiable), so the
     model calls the bias unlearnable and every candidate gains little, though more fiducials would
     resolve it. Measured: A-like seed 34, 10 fiducials at a median spacing of 910 mm, length scale
-    98 mm: "enough" at 10 with 52x the TRE of all fiducials (benchmarks/RESULTS.md, "Planner")."""
+    98 mm: "enough" at 10 with 52x the TRE of all fiducials (benchmarks/RESULTS.md, "Planner").
+    With sigma fitted the kriging fit keeps the length scale at least that spacing
+    (:data:`.gp_fit.FITTED_NOISE_MIN_LENGTH`): the variation between neighbours is noise there,
+    and this rule applies to a given sigma."""
     x = np.asarray(fiducials, dtype=np.float64)
     if len(x) < 2:
         return None
