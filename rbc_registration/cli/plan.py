@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..core.model import build_model
     from ..core.model_planner import error_model_from, plan_from_model
-    from ..core.planner import PlanConfig, typical_repeats
+    from ..core.planner import PlanConfig, overlap_notes, typical_repeats
     from ..io.csv_io import read_fiducials, read_targets
     from ..io.plan_report import format_plan, plan_report
     from ..io.report import write_json
@@ -94,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
         warn("plan", note)
     cand = read_targets(args.candidates, fid.dimension, args.outlier_distance, "candidate",
                         fid.working)
+    for note in overlap_notes(fid.working, fid.ids, cand.working, cand.ids):
+        warn("plan", note)
     tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,
                        fiducials=fid.working) if args.targets else None
     if tgt is not None and args.target_repeats is None:

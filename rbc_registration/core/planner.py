@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple, Optional
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,7 +40,7 @@ from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
                              pooled_median, target_noise)
 from .interpolation import HullTest
-from .repeats import typical_spacing
+from .repeats import TWIN_FRACTION, typical_spacing
 from .validation import as_points, check_spread, rounding
 
 #: ``expected_with_all`` conditions on J + C points at once (one Cholesky factorisation,
@@ -149,6 +149,33 @@ def check_candidates_reach(candidates: NDArray[np.float64],
                          f"the fiducials' size ({size:.4g}): are the candidates in another frame, "
                          f"origin or unit? They must be in the working frame, like the "
                          f"fiducials ({len(candidates)} candidates)")
+
+
+def overlap_notes(fiducials: NDArray[np.float64], fiducial_ids: Sequence[str],
+                  candidates: NDArray[np.float64], candidate_ids: Sequence[str]) -> list[str]:
+    """Warnings (one line each, possibly none) for candidates that look like a mix-up of the
+    files: ids that are fiducial ids at another place, and candidates at measured fiducials
+    (closer than :data:`.repeats.TWIN_FRACTION` x the fiducials' spacing: measuring one again
+    only averages its noise, so the plan ranks it last)."""
+    out = []
+    spacing = typical_spacing(fiducials)
+    near = TWIN_FRACTION * spacing
+    where = {name: k for k, name in enumerate(fiducial_ids)}
+    moved = [name for k, name in enumerate(candidate_ids) if name in where
+             and np.linalg.norm(candidates[k] - fiducials[where[name]]) > near]
+    if moved:
+        out.append(f"{len(moved)} candidate id(s) are fiducial ids at another place "
+                   f"({', '.join(repr(v) for v in moved[:3])}{', ...' if len(moved) > 3 else ''})"
+                   f": a mix-up between the files? They are planned as new locations")
+    if spacing > 0:
+        gap, _ = cKDTree(fiducials).query(candidates, k=1)
+        at = np.flatnonzero(gap <= near)
+        if at.size:
+            out.append(f"{at.size} of {len(candidates)} candidates are at measured fiducials "
+                       f"(within {TWIN_FRACTION * 100:g} % of their spacing, e.g. "
+                       f"{candidate_ids[int(at[0])]!r}): measuring one again only averages its "
+                       f"noise")
+    return out
 
 
 class MeasurementPlan(NamedTuple):

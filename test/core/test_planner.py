@@ -17,8 +17,8 @@ from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpo
 from rbc_registration.core.model_planner import (check_expected_error, decisive_candidate,
                                                  error_model_from, expected_target_error,
                                                  plan_from_model)
-from rbc_registration.core.planner import (PlanConfig, measurement_repeats, plan, unresolved_bias,
-                                           work_volume)
+from rbc_registration.core.planner import (PlanConfig, measurement_repeats, overlap_notes, plan,
+                                           unresolved_bias, work_volume)
 from rbc_registration.core.registration import rigid_fit
 from rbc_registration.core.rigid_tre import rigid_tre_covariance
 from rbc_registration.core.synthetic import make_cell
@@ -570,3 +570,21 @@ def test_a_far_point_does_not_make_the_fit_look_degenerate(d):
     assert np.all(np.isfinite(fit.now())) and np.all(fit.now() > 0)
     np.testing.assert_allclose(rigid_tre_covariance(x, x[:3], cov),
                                rigid_tre_covariance(x + 1e6, x[:3] + 1e6, cov), rtol=1e-6)
+
+
+def test_candidates_that_look_like_a_mix_up_of_the_files_are_named():
+    """A review: candidate ids that are fiducial ids at another place, and the fiducials file
+    given as the candidates, were planned without a word."""
+    holes = grid(6, 0.0, 500.0, 2)
+    ids = [f"H{k}" for k in range(len(holes))]
+    fid, fid_ids = holes[:10], ids[:10]
+    assert overlap_notes(fid, fid_ids, holes[10:], ids[10:]) == []
+    moved = overlap_notes(fid, fid_ids, holes[10:14], ["H0", "H1", "X", "Y"])
+    assert moved == ["2 candidate id(s) are fiducial ids at another place ('H0', 'H1'): a mix-up "
+                     "between the files? They are planned as new locations"]
+    again = overlap_notes(fid, fid_ids, np.vstack([holes[10:], fid[3:4] + 0.1]),
+                          ids[10:] + ["again"])
+    assert again == ["1 of 27 candidates are at measured fiducials (within 1 % of their spacing, "
+                     "e.g. 'again'): measuring one again only averages its noise"]
+    same = overlap_notes(fid, fid_ids, fid, fid_ids)           # the fiducials as candidates
+    assert len(same) == 1 and same[0].startswith("10 of 10 candidates are at measured fiducials")
