@@ -89,6 +89,8 @@ def frame_mismatch(working: ArrayLike, destination: ArrayLike) -> Optional[str]:
     """
     x = np.asarray(working, dtype=float)
     y = np.asarray(destination, dtype=float)
+    if len(x) < 2:                       # nothing to compare: the count check says so
+        return None
     xc, yc = x - x.mean(axis=0), y - y.mean(axis=0)
     sx, sy = _rms_radius(xc, 0.0), _rms_radius(yc, 0.0)
     if not (sx > 0 and sy > 0):

@@ -83,3 +83,18 @@ def test_a_file_whose_cell_size_fits_another_unit_is_named(size, metres_per_unit
         assert text is None
     else:
         assert expected in text and "check --unit" in text
+
+
+@pytest.mark.parametrize("j", [0, 1])
+def test_no_fiducials_is_one_error_without_numpy_warnings(j):
+    """A review: zero fiducials printed four numpy RuntimeWarnings (the mean of an empty slice in
+    frame_mismatch) before the ValueError."""
+    import warnings
+
+    from rbc_registration.core.model import build_model
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert frame_mismatch(np.zeros((j, 3)), np.zeros((j, 3))) is None
+        with pytest.raises(ValueError, match=f"needs at least 4 fiducials, got {j}"):
+            build_model(np.zeros((j, 3)), np.zeros((j, 3)))
