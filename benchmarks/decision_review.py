@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 
 from rbc_registration.core.config import ModelConfig  # noqa: E402
 from rbc_registration.core.model import build_model  # noqa: E402
+from rbc_registration.core.synthetic import random_rotation  # noqa: E402
 
 NOISE = 1e-4        # m, RMS of one measurement over all axes
 #: (dimension, layout, fiducials, bias / noise): the review's cells.
@@ -43,15 +44,6 @@ def layout(rng: np.random.Generator, kind: str, n: int, d: int) -> np.ndarray:
     return rng.uniform(0, 1, (n, d))
 
 
-def rotation(rng: np.random.Generator, d: int) -> np.ndarray:
-    if d == 2:
-        a = rng.uniform(-np.pi, np.pi)
-        return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q = q * np.sign(np.diag(r))
-    return q if np.linalg.det(q) > 0 else -q
-
-
 def cell(seed: int, d: int, kind: str, n: int, bias: float, targets: int = 200):
     """(working fiducials, destination fiducials, working targets, true targets), metres."""
     rng = np.random.default_rng(seed)
@@ -64,7 +56,7 @@ def cell(seed: int, d: int, kind: str, n: int, bias: float, targets: int = 200):
         return np.sin(p @ k.T + phase) @ amp
 
     scale = bias * NOISE / np.sqrt(np.mean(np.sum(field(fid) ** 2, axis=1)))
-    r, t = rotation(rng, d), rng.uniform(-1, 1, d)
+    r, t = random_rotation(rng, d), rng.uniform(-1, 1, d)
 
     def work(p: np.ndarray) -> np.ndarray:
         return (p - t) @ r + scale * field(p) + rng.normal(0, NOISE / math.sqrt(d), p.shape)

@@ -84,7 +84,8 @@ class SyntheticCell:
         return np.array([m.mean(axis=0) for m in self.target_measurements])
 
 
-def _rotation(rng: np.random.Generator, dim: int) -> NDArray[np.float64]:
+def random_rotation(rng: np.random.Generator, dim: int) -> NDArray[np.float64]:
+    """A uniformly random proper rotation (dim x dim) drawn from ``rng``."""
     if dim == 2:
         a = rng.uniform(-np.pi, np.pi)
         return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
@@ -146,7 +147,7 @@ def make_cell(name: str, seed: int = 0, repeats: Optional[int] = None) -> Synthe
         fid_n[rng.choice(len(fid_true), size=52, replace=False)] = spec.repeats
         tgt_n = np.ones(len(tgt_true), dtype=int)
 
-    rot = _rotation(rng, d)
+    rot = random_rotation(rng, d)
     trans = rng.uniform(-1000, 1000, size=d)
     field = _bias_field(rng, d, extent)
     noise_rng = np.random.default_rng([seed, CELLS.index(name), 1])
