@@ -22,9 +22,10 @@ class OneLineParser(argparse.ArgumentParser):
 
 
 def output_file(text: str) -> Path:
-    """An argument type: the path of a file to write. A name ending in a path separator names a
-    directory (``Path`` drops the separator, and ``--json out/`` wrote a file ``out``)."""
-    if not text or text.endswith(("/", os.sep)):
+    """An argument type: the path of a file to write. A name ending in a path separator (or in
+    ``.`` or ``..``) names a directory (``Path`` drops the separator, and ``--json out/`` or
+    ``--json out/.`` wrote a file ``out``)."""
+    if not text or text.endswith(("/", os.sep)) or os.path.basename(text) in (".", ".."):
         raise argparse.ArgumentTypeError(f"{text!r} names a directory, not a file: add the "
                                          f"file's name")
     return Path(text)

@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist, squareform
 
 from .blocked_linalg import inverse_from_cholesky
+from .repeats import typical_spacing
 from .validation import as_point_pairs
 
 #: Above this many fiducials the hyper-parameters are fitted on a subsample of this many (the
@@ -43,7 +44,8 @@ SEARCH_MAX_FIDUCIALS = 300
 GRID_LENGTHS = 8
 GRID_NOISE_RATIOS = tuple(10.0 ** k for k in range(-6, 3))
 #: With the noise fitted (no sigma given), the length scale is at least this many times the
-#: fiducials' median nearest-neighbour distance. Single measurements cannot tell a field that
+#: fiducials' median nearest-neighbour distance (:func:`.repeats.typical_spacing`: coinciding
+#: fiducials count once). Single measurements cannot tell a field that
 #: varies between neighbouring fiducials from noise, and the likelihood then often prefers "no
 #: noise, l ~ half the spacing": kriging passes through every fiducial's noise, and leave-one-out
 #: cannot see it (a held-out fiducial is a spacing from the others, where such a field has faded
@@ -287,7 +289,7 @@ def fit_hyperparameters(points: ArrayLike, corrections: ArrayLike,
     noise2 = None if sigma is None else float(sigma) ** 2 / d
     shortest = spacing / 4
     if noise2 is None:          # variation between neighbours is not told from noise
-        shortest = max(shortest, FITTED_NOISE_MIN_LENGTH * float(np.median(near)))
+        shortest = max(shortest, FITTED_NOISE_MIN_LENGTH * typical_spacing(x))
     bounds = [(math.log(1e-8), math.log(1e3)), (math.log(shortest), math.log(extent * 10))]
     if noise2 is None:
         bounds.append((math.log(1e-12), math.log(1e2)))

@@ -134,21 +134,29 @@ def check_near(points: NDArray[np.float64], fiducials: NDArray[np.float64], name
                          f"unit? ({far.size} such {name}(s))")
 
 
+#: Candidates whose box lies farther than this many fiducial sizes from the fiducials' box are
+#: refused (:func:`check_candidates_reach`).
+REACH_FACTOR = 2.0
+
+
 def check_candidates_reach(candidates: NDArray[np.float64],
                            fiducials: NDArray[np.float64]) -> None:
-    """:raises ValueError: when every candidate is farther from every fiducial than the
-        fiducials' size (the largest side of their box): a whole file in another frame, origin
-        or unit (the holes not yet measured include some next to the measured ones; a file
-        shifted by 14 cell sizes was planned, its gains meaningless).
-        :func:`check_near` cannot see it, since the candidates themselves set its centre."""
-    size = float((fiducials.max(axis=0) - fiducials.min(axis=0)).max())
-    nearest = cKDTree(fiducials).query(candidates, k=1)[0]
-    gap = float(np.min(nearest))
-    if gap > size:
-        raise ValueError(f"every candidate is at least {gap:.4g} from every fiducial, more than "
-                         f"the fiducials' size ({size:.4g}): are the candidates in another frame, "
-                         f"origin or unit? They must be in the working frame, like the "
-                         f"fiducials ({len(candidates)} candidates)")
+    """:raises ValueError: when the candidates' bounding box lies farther from the fiducials'
+        box than :data:`REACH_FACTOR` x the fiducials' size (the largest side of their box): a
+        whole file in another frame, origin or unit (a file shifted by 14 cell sizes was
+        planned, its gains meaningless). Candidates around the fiducials, on the far side of a
+        plate whose corner was measured, or on a parallel rail 1.2 sizes away pass; a shift of
+        less than about two sizes cannot be told from them. :func:`check_near` cannot see it,
+        since the candidates themselves set its centre."""
+    lo, hi = fiducials.min(axis=0), fiducials.max(axis=0)
+    size = float((hi - lo).max())
+    apart = np.maximum(0.0, np.maximum(candidates.min(axis=0) - hi, lo - candidates.max(axis=0)))
+    gap = float(np.linalg.norm(apart))
+    if gap > REACH_FACTOR * size:
+        raise ValueError(f"the candidates lie {gap:.4g} beyond the fiducials' box, more than "
+                         f"{REACH_FACTOR:g} x the fiducials' size ({size:.4g}): are the candidates "
+                         f"in another frame, origin or unit? They must be in the working frame, "
+                         f"like the fiducials ({len(candidates)} candidates)")
 
 
 def overlap_notes(fiducials: NDArray[np.float64], fiducial_ids: Sequence[str],
@@ -266,7 +274,7 @@ def work_volume(points: ArrayLike, count: int = 400) -> NDArray[np.float64]:
     while True:
         h = (float(np.prod(ext[thick])) / count) ** (1.0 / int(thick.sum()))
         thin = thick & (ext < h)
-        if not thin.any():
+        if not thin.any() or thin.sum() == thick.sum():     # all thin: rounding of the root
             break
         thick &= ~thin
     axes = []
@@ -300,7 +308,8 @@ def unresolved_bias(fiducials: ArrayLike, error_model: ExpectedErrorModel) -> Op
     bias = error_model.signal_std * math.sqrt(error_model.dimension)
     noise = math.sqrt(float(np.trace(error_model.noise_covariance)))
     # exact data: a "bias" of rounding
-    if error_model.length_scale >= spacing or bias <= max(noise, rounding(x)):
+    # at the spacing (to rounding): the floor of a fit with sigma unknown, resolved
+    if error_model.length_scale >= spacing * (1 - 1e-9) or bias <= max(noise, rounding(x)):
         return None
     return (f"the fitted bias length scale ({error_model.length_scale:.4g}) is shorter than the "
             f"fiducials' spacing ({spacing:.4g}) while the bias ({bias:.4g}) exceeds the noise "

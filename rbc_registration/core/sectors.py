@@ -116,7 +116,9 @@ def one_target_weights(tree: cKDTree, points: NDArray[np.float64], target: NDArr
     node's single target: the rule's 64-neighbour query, then the sectors by the formula itself
     and each sector's first candidate in query order, in floats instead of (64, 8) arrays).
     ``on_tolerance``: :func:`on_fiducial_tolerance` of ``points``."""
-    k = min(SECTOR_CANDIDATES, len(points))           # >= 3: a 2D hull has 3 fiducials
+    k = min(SECTOR_CANDIDATES, len(points))
+    if k < 2:                               # one fiducial: the query gives scalars
+        return sector_weights(tree, points, target)
     dist, cand = tree.query(target[0], k=k)
     delta = points[cand] - target[0]
     sector = _sector_formula(delta[:, 0], delta[:, 1]).tolist()

@@ -252,3 +252,15 @@ def test_one_target_path_equals_reference(case):
         np.testing.assert_array_equal(idx, ref_idx)
         np.testing.assert_array_equal(ip(t[None]).correction,
                                       np.einsum("km,kmd->kd", ref_w, eps[ref_idx]))
+
+
+
+def test_one_target_path_with_one_or_two_fiducials():
+    """The query returns scalars for one fiducial (a review): the rule itself answers."""
+    for pts in (np.array([[1.0, 2.0]]), np.array([[0.0, 0.0], [1.0, 0.5]])):
+        tree = cKDTree(pts)
+        for t in (np.array([[0.3, 0.1]]), pts[:1]):
+            a = sectors.sector_weights(tree, pts, t)
+            b = sectors.one_target_weights(tree, pts, t, sectors.on_fiducial_tolerance(pts))
+            np.testing.assert_array_equal(a[0], b[0])
+            np.testing.assert_array_equal(a[1], b[1])
