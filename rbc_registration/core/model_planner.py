@@ -107,6 +107,13 @@ def held_back_by_decision(model: RbcModel) -> Optional[str]:
             "below is what targets get")
 
 
+#: The decisive candidate (:func:`decisive_candidate`) is suggested first only when its
+#: correction is at least this many of its standard deviations: below, it is noise and tests
+#: nothing, and the plan is greedy from its first suggestion (a review: 0.00065 sigma displaced
+#: the best-gain candidate).
+MIN_DECISIVE_Z = 1.0
+
+
 def decisive_candidate(model: RbcModel, candidates: ArrayLike) -> Optional[tuple[int, float]]:
     """The candidate that tests the correction best, and its score: where the model's kriging
     expects the largest correction against its uncertainty, z = |eps(c)| / s(c) (posterior mean
@@ -142,6 +149,8 @@ def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[Ar
     em = error_model_from(model) if error_model is None else error_model
     held = held_back_by_decision(model)
     decisive = decisive_candidate(model, candidates) if held is not None else None
+    if decisive is not None and decisive[1] < MIN_DECISIVE_Z:
+        decisive = None                 # no correction stands out of its noise: it tests nothing
     if decisive is not None:
         held += (f"; the first suggestion (#{decisive[0]}) is where the correction is expected "
                  f"largest against its uncertainty ({decisive[1]:.3g} sigma), to test it")

@@ -530,6 +530,22 @@ def test_no_enough_while_the_decision_is_unsure_whether_to_correct(ra_model):
     assert not p.enough and "not confident" in p.reason
 
 
+def test_a_decisive_candidate_within_its_noise_is_not_forced_first(ra_model, monkeypatch):
+    """A review: a "decisive" candidate at 0.00065 sigma displaced the best-gain one; below
+    MIN_DECISIVE_Z the plan is greedy from its first suggestion, and still held back."""
+    from rbc_registration.core import model_planner
+
+    m, rest, _ = ra_model
+    base = plan_from_model(m, rest, count=2)
+    other = int(base.ranking[-1])                         # the worst candidate, if it were forced
+    monkeypatch.setattr(model_planner, "held_back_by_decision", lambda model: "unsure")
+    for z, first in ((0.5, int(base.ranking[0])), (model_planner.MIN_DECISIVE_Z, other)):
+        monkeypatch.setattr(model_planner, "decisive_candidate", lambda model, c, z=z: (other, z))
+        held = plan_from_model(m, rest, count=2)
+        assert not held.enough and held.sequence[0] == first
+        assert ("to test it" in held.reason) == (first == other)
+
+
 def test_cross_validation_agrees_with_the_expected_error(ra_model):
     m, _, _ = ra_model
     cv = check_expected_error(m)
