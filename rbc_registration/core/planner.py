@@ -40,7 +40,7 @@ from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
                              pooled_median, target_noise)
 from .interpolation import HullTest
-from .repeats import TWIN_FRACTION, typical_spacing
+from .repeats import TWIN_FRACTION, same_place_limit, typical_spacing
 from .validation import as_points, check_spread, rounding
 
 #: ``expected_with_all`` conditions on J + C points at once (one Cholesky factorisation,
@@ -163,11 +163,10 @@ def overlap_notes(fiducials: NDArray[np.float64], fiducial_ids: Sequence[str],
                   candidates: NDArray[np.float64], candidate_ids: Sequence[str]) -> list[str]:
     """Warnings (one line each, possibly none) for candidates that look like a mix-up of the
     files: ids that are fiducial ids at another place, and candidates at measured fiducials
-    (closer than :data:`.repeats.TWIN_FRACTION` x the fiducials' spacing: measuring one again
-    only averages its noise, so the plan ranks it last)."""
+    (one place by the twin rule, :func:`.repeats.same_place_limit`: measuring one again only
+    averages its noise, so the plan ranks it last)."""
     out = []
-    spacing = typical_spacing(fiducials)
-    near = TWIN_FRACTION * spacing
+    near = same_place_limit(fiducials)
     where = {name: k for k, name in enumerate(fiducial_ids)}
     moved = [name for k, name in enumerate(candidate_ids) if name in where
              and np.linalg.norm(candidates[k] - fiducials[where[name]]) > near]
@@ -175,7 +174,7 @@ def overlap_notes(fiducials: NDArray[np.float64], fiducial_ids: Sequence[str],
         out.append(f"{len(moved)} candidate id(s) are fiducial ids at another place "
                    f"({', '.join(repr(v) for v in moved[:3])}{', ...' if len(moved) > 3 else ''})"
                    f": a mix-up between the files? They are planned as new locations")
-    if spacing > 0:
+    if near > 0:
         gap, _ = cKDTree(fiducials).query(candidates, k=1)
         at = np.flatnonzero(gap <= near)
         if at.size:
@@ -307,8 +306,8 @@ def unresolved_bias(fiducials: ArrayLike, error_model: ExpectedErrorModel) -> Op
     spacing = typical_spacing(x)
     bias = error_model.signal_std * math.sqrt(error_model.dimension)
     noise = math.sqrt(float(np.trace(error_model.noise_covariance)))
-    # exact data: a "bias" of rounding
-    # at the spacing (to rounding): the floor of a fit with sigma unknown, resolved
+    # a length at the spacing (to rounding) is the floor of a fit with sigma unknown: resolved;
+    # a bias within the noise, or of rounding (exact data), has nothing to resolve
     if error_model.length_scale >= spacing * (1 - 1e-9) or bias <= max(noise, rounding(x)):
         return None
     return (f"the fitted bias length scale ({error_model.length_scale:.4g}) is shorter than the "

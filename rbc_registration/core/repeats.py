@@ -60,6 +60,18 @@ TWIN_FRACTION = 0.01
 TWIN_NEIGHBOUR = 4
 
 
+def same_place_limit(points: ArrayLike, fraction: float = TWIN_FRACTION) -> float:
+    """The distance below which two of ``points`` are one place: ``fraction`` x the median
+    distance from a point to its :data:`TWIN_NEIGHBOUR`-th nearest neighbour (0 for fewer than
+    3 points)."""
+    p = np.asarray(points, dtype=float)
+    if len(p) < 3:
+        return 0.0
+    k = min(TWIN_NEIGHBOUR, len(p) - 1)
+    dist, _ = cKDTree(p).query(p, k=k + 1)
+    return fraction * float(np.median(dist[:, k]))
+
+
 def twin_groups(working: ArrayLike, destination: ArrayLike,
                 fraction: float = TWIN_FRACTION) -> list[list[int]]:
     """Groups (two or more indices, ascending) of fiducials closer than ``fraction`` x the
@@ -77,11 +89,7 @@ def twin_groups(working: ArrayLike, destination: ArrayLike,
     y = np.asarray(destination, dtype=float)
     if len(x) < 3:
         return []
-    k = min(TWIN_NEIGHBOUR, len(x) - 1)
-    limits = []
-    for p in (x, y):
-        dist, _ = cKDTree(p).query(p, k=k + 1)
-        limits.append(fraction * float(np.median(dist[:, k])))
+    limits = [same_place_limit(p, fraction) for p in (x, y)]
     if not min(limits) > 0:
         return []
     parent = list(range(len(x)))
