@@ -41,7 +41,7 @@ POINT_MODES = ("pair", "sample")      # point_mode: pair points by stamp, or on 
 SAMPLE_SOURCES = ("topic", "tf")      # sample_destination_source
 REBUILD_WORKERS = ("auto", "thread", "process")  # rebuild_worker (pipeline.build_process)
 #: ``rebuild_worker: auto`` builds in the child process from this many enabled fiducials on (a
-#: kriging build at J = 1,000 takes about 1 s on a 2-core machine, the child's start ~0.5 s once).
+#: kriging build at J = 1,000 takes about 1 s on a 2-core machine, the child's start 1-1.7 s once).
 PROCESS_MIN_FIDUCIALS = 1000
 
 #: Parameters that were removed, with what replaces them (the reason given when one is set).

@@ -116,8 +116,12 @@ def test_missing_file_and_binary(tmp_path):
     with pytest.raises(CsvError, match="no such file"):
         read_fiducials(tmp_path / "nope.csv")
     p = tmp_path / "bin.csv"
-    p.write_bytes(b"\xff\xfe\x00\x81garbage")
-    with pytest.raises(CsvError, match="not a readable CSV"):
+    p.write_bytes(b"\xff\xfe\x00\x81garbage")            # a UTF-16 byte-order mark
+    with pytest.raises(CsvError, match="not a readable CSV.*it is UTF-16 text"):
+        read_fiducials(p)
+    p.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")     # a binary file
+    with pytest.raises(CsvError, match=r"not a readable CSV file \('utf-8' codec can't decode "
+                                       r"byte 0x89 .*\): not UTF-8"):
         read_fiducials(p)
 
 
