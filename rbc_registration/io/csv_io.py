@@ -94,8 +94,12 @@ def _read_rows(path: PathLike, required: list[str]
         raise CsvError(f"{p}: no such file") from None
     except NotARegularFile as exc:
         raise CsvError(str(exc)) from None
-    except (UnicodeDecodeError, csv.Error) as exc:
+    except UnicodeDecodeError as exc:
         raise CsvError(f"{p}: not a readable CSV file ({exc}){_likely_format(p)}") from None
+    except csv.Error as exc:
+        why = (": an opening quote (\") without its closing one, or not a CSV file of points"
+               if "field limit" in str(exc) else "")
+        raise CsvError(f"{p}: not a readable CSV file ({exc}){why}") from None
     if not header:
         raise CsvError(f"{p}: empty file (expected a header {','.join(required)})")
     hint = _header_hint(header)
@@ -106,6 +110,7 @@ def _read_rows(path: PathLike, required: list[str]
     if twice:
         raise CsvError(f"{p}: column(s) {', '.join(twice)} appear more than once in the header "
                        f"{','.join(header)}")
+    _refuse_swallowed_rows(p, header, rows)
     for line, row in rows:
         rest = row.get("")                 # csv.DictReader's list of fields beyond the header
         extra = [v for v in rest if v and v.strip()] if isinstance(rest, list) else []
@@ -119,6 +124,28 @@ def _read_rows(path: PathLike, required: list[str]
     if not rows:
         raise CsvError(f"{p}: no data rows")
     return header, rows
+
+
+def _refuse_swallowed_rows(p: Path, header: list[str],
+                           rows: list[tuple[int, dict[str, object]]]) -> None:
+    """Refuse a quoted field that holds lines which look like rows of the file (at least as many
+    commas as the header has): an opening quote without its closing one (``"5 inch hole`` in a
+    remark) makes the CSV reader take every following line, up to the next quote or the end of
+    the file, as that one field, and the rows in it would be lost without a word. A remark of a
+    few lines (a spreadsheet cell with line breaks) is kept."""
+    commas = len(header) - 1
+    for line, row in rows:
+        for column, value in row.items():
+            if not isinstance(value, str) or ("\n" not in value and "\r" not in value):
+                continue
+            inner = value.splitlines()
+            looks = sum(1 for text in inner[1:] if text.count(",") >= commas)
+            if looks:
+                start = line - len(inner) + 1
+                raise CsvError(
+                    f"{p}: row {start}: the quoted field of column {column or '(extra)'} runs to "
+                    f"row {line} and holds {looks} line(s) that look like rows: an opening quote "
+                    f"(\") without its closing one? Close or remove it")
 
 
 def _likely_format(p: Path) -> str:

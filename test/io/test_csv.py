@@ -125,6 +125,42 @@ def test_missing_file_and_binary(tmp_path):
         read_fiducials(p)
 
 
+def _noted_rows(count):
+    return "".join(f"F{k:02d},{k},{k * k % 7},{k % 5},{k + 0.5},{k * k % 7},{k % 5},ok\n"
+                   for k in range(count))
+
+
+def test_an_unclosed_quote_that_swallows_rows_is_refused(tmp_path):
+    """``"5 inch hole`` in a remark column: the CSV reader takes every later line, up to the next
+    quote or the end of the file, as that one field. 30 fiducials registered as 9, no word."""
+    head = "id,wx,wy,wz,dx,dy,dz,note\n"
+    rows = _noted_rows(30).splitlines(keepends=True)
+    rows[9] = rows[9].replace(",ok", ',"5 inch hole')
+    with pytest.raises(CsvError, match=r"row 11: the quoted field of column note runs to row 31 "
+                                       r"and holds 20 line\(s\) that look like rows: an "
+                                       r"opening quote \(\"\) without its closing one"):
+        read_fiducials(write(tmp_path, head + "".join(rows)))
+    rows[19] = rows[19].replace(",ok", ',re-measured "by Bob')       # closed 10 rows later
+    with pytest.raises(CsvError, match="row 11: the quoted field of column note runs to row 21 "
+                                       "and holds 10 line"):
+        read_targets(write(tmp_path, head + "".join(rows)), 3)
+
+
+def test_a_remark_over_a_few_lines_and_quoted_inches_are_read(tmp_path):
+    head = "id,wx,wy,wz,dx,dy,dz,note\n"
+    rows = _noted_rows(8).splitlines(keepends=True)
+    rows[2] = rows[2].replace(",ok", ',"re-measured, by Bob\nsecond line, ok"')
+    rows[4] = rows[4].replace(",ok", ',"3/8"" pin"')
+    table = read_fiducials(write(tmp_path, head + "".join(rows)))
+    assert table.ids == tuple(f"F{k:02d}" for k in range(8))
+
+
+def test_a_field_over_the_csv_limit_names_the_likely_cause(tmp_path):
+    with pytest.raises(CsvError, match=r"field larger than field limit .*: an opening quote "
+                                       r"\(\"\) without its closing one, or not a CSV"):
+        read_fiducials(write(tmp_path, "id,wx,wy,dx,dy\nA," + "1" * 200_000 + ",1,1,1\n"))
+
+
 def test_dim3_needs_z(tmp_path):
     with pytest.raises(CsvError, match="--dim 3 needs"):
         read_fiducials(write(tmp_path, "id,wx,wy,dx,dy\na,0,0,1,1\n"), dim=3)
