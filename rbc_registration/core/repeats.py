@@ -14,7 +14,8 @@ from scipy.spatial import cKDTree
 
 def repeat_outlier(fiducial_id: str, frame: str, point: Sequence[float],
                    earlier_mean: Sequence[float], n_earlier: int, limit: float,
-                   limit_name: str = "outlier_distance", kind: str = "fiducial") -> Optional[str]:
+                   limit_name: str = "outlier_distance", kind: str = "fiducial",
+                   others: str = "earlier") -> Optional[str]:
     """Whether ``point`` is farther than ``limit`` from the mean of the fiducial's (or target's)
     earlier (accepted) repeats.
 
@@ -22,6 +23,8 @@ def repeat_outlier(fiducial_id: str, frame: str, point: Sequence[float],
     :param limit: the distance; 0 (or no earlier repeat) switches the check off.
     :param limit_name: how the message names the limit.
     :param kind: what the id names in the message (``fiducial``, ``target``).
+    :param others: how the message names the repeats compared with (``earlier``; ``accepted``
+        where they were not taken in the order measured).
     :return: ``None`` when the point is fine, else the message naming the fiducial, the
         distance and the limit.
     """
@@ -31,7 +34,7 @@ def repeat_outlier(fiducial_id: str, frame: str, point: Sequence[float],
     if dist <= limit:
         return None
     return (f"{kind} {fiducial_id!r}: {frame} point is {dist:.6g} from the mean of its "
-            f"{n_earlier} earlier repeat(s), more than {limit_name} {limit:g}")
+            f"{n_earlier} {others} repeat(s), more than {limit_name} {limit:g}")
 
 
 def typical_spacing(points: ArrayLike) -> float:

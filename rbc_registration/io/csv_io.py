@@ -324,30 +324,47 @@ def _repeat_limits(first_rows: list[list[list[float]]], outlier_distance: Option
 def _checked_repeats(path: PathLike, fid: str, group: list[tuple[int, list[float], list[float]]],
                      limits: tuple[tuple[float, str], ...], notes: list[str]
                      ) -> tuple[list[list[float]], list[list[float]]]:
-    """The rows of one id that pass the repeat rule; raises on a destination conflict."""
+    """The rows of one id that pass the repeat rule, in file order; raises on a destination
+    conflict. The node's rule (each repeat against the mean of those accepted before it), with
+    the id's most central row (:func:`_central_first`) taken first: a file holds every repeat,
+    so a wrong first row is the one ignored, not the rows that agree with each other."""
     (w_limit, w_name), (d_limit, d_name) = limits
-    work: list[list[float]] = []
-    dest: list[list[float]] = []
+    kept: list[int] = []
     w_sum = [0.0] * len(group[0][1]) if group else []   # running sums: linear in the repeats
     d_sum = [0.0] * len(group[0][2]) if group else []
-    for line, w, t in group:
-        n = len(work)
+    for k in _central_first(group):
+        line, w, t = group[k]
+        n = len(kept)
         if n:
             far = repeat_outlier(fid, "destination", t, [v / n for v in d_sum], n, d_limit,
-                                 d_name)
+                                 d_name, others="accepted")
             if far:
                 raise CsvError(f"{path}: id {fid!r} (first at row {group[0][0]}) has conflicting "
                                f"destination points: row {line}: {far}")
-            far = repeat_outlier(fid, "working", w, [v / n for v in w_sum], n, w_limit, w_name)
+            far = repeat_outlier(fid, "working", w, [v / n for v in w_sum], n, w_limit, w_name,
+                                 others="accepted")
             if far:
                 notes.append(f"{path}: row {line}: {far}: row ignored (as the node rejects an "
                              "outlier)")
                 continue
-        work.append(w)
-        dest.append(t)
+        kept.append(k)
         w_sum = [a + b for a, b in zip(w_sum, w)]
         d_sum = [a + b for a, b in zip(d_sum, t)]
-    return work, dest
+    kept.sort()
+    return [group[k][1] for k in kept], [group[k][2] for k in kept]
+
+
+def _central_first(group: list[tuple[int, list[float], list[float]]]) -> list[int]:
+    """The order the repeat rule takes an id's rows in: the row nearest the rows' median (per
+    coordinate, both frames together) first, then the others in file order. With one or two
+    rows, or a tie, the file's order (no majority to go by)."""
+    order = list(range(len(group)))
+    if len(group) < 3:
+        return order
+    points = np.array([list(w) + list(t) for _, w, t in group], dtype=float)
+    dist = np.linalg.norm(points - np.median(points, axis=0), axis=1)
+    central = int(np.argmin(dist))              # the first of equally central rows
+    return [central] + [k for k in order if k != central]
 
 
 def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = None,

@@ -161,6 +161,21 @@ def test_a_field_over_the_csv_limit_names_the_likely_cause(tmp_path):
         read_fiducials(write(tmp_path, "id,wx,wy,dx,dy\nA," + "1" * 200_000 + ",1,1,1\n"))
 
 
+def test_a_wrong_first_repeat_is_the_row_ignored_not_the_rows_that_agree(tmp_path):
+    """The first row of an id 60 mm off, four agreeing repeats after it: judged against the
+    first row, the four good rows were ignored (and named) and the wrong one kept."""
+    text = (H3 + "a,0.6,0,0,10,0,0\na,0,0,0,10,0,0\na,0.001,0,0,10,0,0\na,0.002,0,0,10,0,0\n"
+            "a,0.0015,0,0,10,0,0\n" + SPREAD)
+    t = read_fiducials(write(tmp_path, text))
+    assert len(t.notes) == 1 and "row 2:" in t.notes[0] and "'a'" in t.notes[0]
+    assert "from the mean of its 1 accepted repeat(s)" in t.notes[0]
+    np.testing.assert_allclose(t.working_repeats[0][:, 0], [0, 0.001, 0.002, 0.0015])
+    # two rows: no majority, the file's order (the second is the one ignored)
+    two = read_fiducials(write(tmp_path, H3 + "a,0.6,0,0,10,0,0\na,0,0,0,10,0,0\n" + SPREAD))
+    assert len(two.notes) == 1 and "row 3:" in two.notes[0]
+    np.testing.assert_allclose(two.working_repeats[0][:, 0], [0.6])
+
+
 def test_dim3_needs_z(tmp_path):
     with pytest.raises(CsvError, match="--dim 3 needs"):
         read_fiducials(write(tmp_path, "id,wx,wy,dx,dy\na,0,0,1,1\n"), dim=3)
@@ -215,7 +230,7 @@ def test_a_working_repeat_far_from_its_siblings_is_dropped_with_one_line(tmp_pat
     assert len(t.notes) == 1 and "\n" not in t.notes[0]
     note = t.notes[0]
     assert "row 4" in note and "'a'" in note
-    assert "0.5995 from the mean of its 2 earlier repeat(s)" in note and "ignored" in note
+    assert "0.5995 from the mean of its 2 accepted repeat(s)" in note and "ignored" in note
     np.testing.assert_allclose(t.working_repeats[0][:, 0], [0, 0.001, 0.002])
     # the node's rule with an explicit outlier_distance (in the file's unit); 0 switches it off
     strict = read_fiducials(write(tmp_path, text), outlier_distance=0.0012)
