@@ -42,6 +42,16 @@ class ModelState:
 
 
 EMPTY_STATE = ModelState(None, None, None, "no measurements yet")
+#: Served from the first accepted (or restored) measurement until the first model is built.
+BUILDING_STATE = ModelState(None, None, None, "the first model is being built from the accepted "
+                                              "measurements: retry in a moment")
+
+
+def first_build_failed(reason: str) -> ModelState:
+    """Served when the first build failed (e.g. its process was killed): no model, the
+    measurements kept, the reason said where a client looks (``~/status``, every answer)."""
+    return ModelState(None, None, None, f"the first model could not be built ({reason}); the "
+                                        "measurements are kept: call ~/recompute to retry")
 
 
 def model_config(settings: Settings) -> ModelConfig:

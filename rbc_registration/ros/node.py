@@ -39,7 +39,8 @@ from ..pipeline.ingest import Ingest
 from ..pipeline.journal import Journal
 from ..pipeline.snapshot import start_warnings, write_atomic
 from ..pipeline.build_process import BuildCancelled, ProcessBuilder
-from ..pipeline.state import EMPTY_STATE, ModelState, warm_start
+from ..pipeline.state import (BUILDING_STATE, EMPTY_STATE, ModelState, first_build_failed,
+                               warm_start)
 from ..pipeline.worker import LatestWriter, RecomputeWorker
 from ..runtime import freeze_startup_objects
 from . import conversions as conv
@@ -192,6 +193,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
                                        self._on_worker_error, clock)
         if restored:
+            self._state = BUILDING_STATE
             self._worker.request_now()
         self._publish_status()
         self.get_logger().info(
@@ -208,7 +210,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
                 exc.reason, f"FiducialPair {quote(msg.fiducial_id)}: {exc.message}"))
             return
         if self._ingest.measurement(args):
-            self._worker.notify()
+            self._measurements_changed()
 
     def _on_point(self, stream: str, msg: PointStamped) -> None:
         self._samples.update(stream, msg)  # the latest point, for ~/take_sample
@@ -224,7 +226,16 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if recorded:
             self._samples.mark_paired(recorded)
         if pairs:
-            self._worker.notify()
+            self._measurements_changed()
+
+    def _measurements_changed(self) -> None:
+        """A measurement was accepted: the recompute thread is woken, and until a first model
+        exists the state served says it is being built (not "no measurements yet")."""
+        if self._state is EMPTY_STATE:
+            with self._pub_lock:
+                if self._state is EMPTY_STATE:
+                    self._state = BUILDING_STATE
+        self._worker.notify()
 
     def _on_working_point(self, msg: PointStamped) -> None:
         self._on_point(WORKING, msg)
@@ -258,6 +269,10 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if isinstance(exc, BuildCancelled):   # destroy_node killed the build process
             return
         self.get_logger().error(f"recompute failed: {type(exc).__name__}: {exc}")
+        with self._pub_lock:     # no model to keep: the answers say why there is none
+            if self._state is BUILDING_STATE:
+                self._state = first_build_failed(f"{type(exc).__name__}: {exc}")
+        self._publish_status()
 
     def destroy_node(self) -> None:
         """Stop the recompute, planning and snapshot threads, close the journal, release

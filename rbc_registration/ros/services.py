@@ -54,6 +54,7 @@ class ServicesMixin:
     _settings: Any
     _ingest: Any
     _worker: Any
+    _measurements_changed: Any
     _pub_lock: Any
     _generation: int
     _snapshot_lock: Any
@@ -199,7 +200,7 @@ class ServicesMixin:
         self._samples.mark_sampled(taken)   # no second sample of the same measurement
         if self._settings.point_mode == "pair":   # not again when its stamp partner arrives
             self._ingest.discard_point(WORKING, args.working_xyz, args.stamp_s)
-        self._worker.notify()
+        self._measurements_changed()
         response.pair = samples.pair_message(record, args, self._settings)
         response.success = True
         response.message = (f"recorded fiducial {record.fiducial_id!r}"
