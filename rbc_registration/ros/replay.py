@@ -21,6 +21,13 @@ from ..io.progress import Progress
 
 SETTLE_S = 0.5      # after the first subscriber matched: time for the others to be discovered
 ACK_TIMEOUT_S = 10.0
+#: Topics replayed transient-local (tf2's static transforms): the rest volatile.
+LATCHED_TOPICS = frozenset({"/tf_static"})
+#: How long a publish may wait for slow subscribers to take earlier messages [s]: a reliable,
+#: keep-all publisher whose subscriber's history is full fails after the middleware's blocking
+#: time; the message is published again once they acknowledged, and the replay stops with one
+#: line only when nothing was taken for this long.
+STALL_TIMEOUT_S = 30.0
 
 
 class ReplayResult(NamedTuple):
@@ -116,7 +123,6 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
 
     import rclpy
     from rclpy.duration import Duration
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.signals import SignalHandlerOptions
 
     own = context is None
@@ -128,11 +134,7 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
     try:
         node = rclpy.create_node("rbc_bag_replay", context=context,
                                  start_parameter_services=False)
-        # Reliable, volatile, keep-all: a slow subscriber delays the replay instead of losing
-        # messages (the node's inputs are reliable, keep-all).
-        qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
-        publishers = {t: node.create_publisher(c, t, qos) for t, c in classes.items()}
+        publishers = {t: node.create_publisher(c, t, replay_qos(t)) for t, c in classes.items()}
         _wait_for_subscribers(publishers, wait, log)
         started = time.monotonic()
         published, passes = _play(messages, publishers, rate, loop, progress, max_gap, log)
@@ -145,6 +147,18 @@ def replay(bag: Union[str, Path], rate: float = 1.0, loop: bool = False,
             node.destroy_node()
         if own:
             rclpy.try_shutdown(context=context)
+
+
+def replay_qos(topic: str) -> Any:
+    """The QoS ``topic`` is replayed with: reliable, keep-all (a slow subscriber delays the
+    replay instead of losing messages; the node's inputs are reliable, keep-all); volatile, but
+    :data:`LATCHED_TOPICS` transient-local, as tf2 publishes and listens to ``/tf_static`` (a
+    volatile publisher never reaches a tf2 static listener)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if topic in LATCHED_TOPICS
+                      else DurabilityPolicy.VOLATILE)
 
 
 def schedule(log_ns: Sequence[int], rate: float, max_gap: float) -> tuple[list[float], str]:
@@ -183,10 +197,34 @@ def _play(messages: list[RawMessage], publishers: dict[str, Any], rate: float, l
             delay = start + offset - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            publishers[m.topic].publish(m.data)
+            _publish(publishers[m.topic], m, published, len(messages), rate)
             published += 1
             bar.update()
         bar.done()
         passes += 1
         if not loop:
             return published, passes
+
+
+def _publish(publisher: Any, message: RawMessage, published: int, total: int,
+             rate: float) -> None:
+    """Publish one message; while the subscribers are too slow to take it (the middleware
+    refuses it once their history is full), wait for them to acknowledge what was sent and
+    try again, so nothing is lost; a ValueError naming the topic after :data:`STALL_TIMEOUT_S`
+    without progress."""
+    from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.duration import Duration
+
+    deadline = time.monotonic() + STALL_TIMEOUT_S
+    while True:
+        try:
+            publisher.publish(message.data)
+            return
+        except RCLError as exc:
+            if time.monotonic() > deadline:
+                raise ValueError(
+                    f"publishing on {terminal(message.topic)} failed after {published} of "
+                    f"{total} message(s): its subscribers took nothing for "
+                    f"{STALL_TIMEOUT_S:g} s ({str(exc).splitlines()[0]}); is one of them "
+                    f"stopped? (at --rate {rate:g})") from None
+            publisher.wait_for_all_acked(Duration(seconds=0.05))

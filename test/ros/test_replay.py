@@ -228,3 +228,66 @@ def test_a_long_gap_in_the_receive_times_is_shortened_to_max_gap_with_one_line()
                     "shortened to it; the longest 2.592e+06 s of receive time, before message 4")
     offsets, line = schedule(log_ns[:3], rate=1.0, max_gap=60.0)
     assert offsets == pytest.approx([0.0, 1.0, 2.0]) and line == ""
+
+
+class _SlowSubscriberPublisher:
+    """A reliable keep-all publisher whose subscriber's history is full ``refusals`` times."""
+
+    def __init__(self, refusals):
+        from rclpy._rclpy_pybind11 import RCLError
+
+        self.refusals, self.error, self.sent, self.waits = refusals, RCLError, [], 0
+
+    def publish(self, data):
+        if self.refusals:
+            self.refusals -= 1
+            raise self.error("Failed to publish: cannot publish data, at rmw_publish.cpp:120")
+        self.sent.append(data)
+
+    def wait_for_all_acked(self, timeout):
+        self.waits += 1
+        return False
+
+
+def test_a_message_refused_by_a_full_subscriber_is_published_again_not_lost():
+    """--rate 1e6 into a slow subscriber: the replay died with an RCLError traceback half way
+    (130,495 of 200,000 messages reached the node)."""
+    from rbc_registration.io.bag.records import RawMessage
+    from rbc_registration.ros import replay
+
+    publisher = _SlowSubscriberPublisher(refusals=3)
+    message = RawMessage("/registration_node/fiducial_pairs",
+                         "rbc_registration_interfaces/msg/FiducialPair", 0, b"abc")
+    replay._publish(publisher, message, 7, 10, 1e6)
+    assert publisher.sent == [b"abc"] and publisher.waits == 3
+
+
+def test_a_subscriber_that_takes_nothing_stops_the_replay_with_one_line(monkeypatch):
+    from rbc_registration.io.bag.records import RawMessage
+    from rbc_registration.ros import replay
+
+    monkeypatch.setattr(replay, "STALL_TIMEOUT_S", 0.2)
+    message = RawMessage("/registration_node/fiducial_pairs",
+                         "rbc_registration_interfaces/msg/FiducialPair", 0, b"abc")
+    with pytest.raises(ValueError, match=r"^publishing on /registration_node/fiducial_pairs "
+                                         r"failed after 7 of 10 message\(s\): its subscribers "
+                                         r"took nothing for 0.2 s \(Failed to publish: cannot "
+                                         r"publish data, at rmw_publish.cpp:120\); is one of "
+                                         r"them stopped\? \(at --rate 1e\+06\)$"):
+        replay._publish(_SlowSubscriberPublisher(refusals=10**9), message, 7, 10, 1e6)
+
+
+def test_tf_static_is_replayed_transient_local_as_tf2_listens():
+    """A recording's /tf_static was replayed volatile: a tf2 static listener (transient-local)
+    took none of it, 'offering incompatible QoS'."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
+
+    from rbc_registration.ros.replay import replay_qos
+
+    assert replay_qos("/tf_static").durability == DurabilityPolicy.TRANSIENT_LOCAL
+    for topic in ("/tf_static", "/registration_node/fiducial_pairs"):
+        qos = replay_qos(topic)
+        assert (qos.history, qos.reliability) == (HistoryPolicy.KEEP_ALL,
+                                                  ReliabilityPolicy.RELIABLE)
+    assert replay_qos("/registration_node/fiducial_pairs").durability == \
+        DurabilityPolicy.VOLATILE
