@@ -54,9 +54,9 @@ def topics_from_args(args: argparse.Namespace) -> tuple[Any, list[str]]:
     if node is None:
         # --fiducial-topic /cell_a/reg/fiducial_pairs: the targets are /cell_a/reg/targets (the
         # node's own namespace), not /registration_node/targets, a topic such a bag lacks
+        # (the root counts as a namespace: /tracker/point and /robot_point share none)
         parents = {t.rstrip("/").rpartition("/")[0] for t in explicit.values()}
-        parents.discard("")
-        node = parents.pop() if len(parents) == 1 else "registration_node"
+        node = parents.pop() if len(parents) == 1 and "" not in parents else "registration_node"
     return Topics.for_node(node)._replace(**explicit), list(explicit.values())
 
 

@@ -154,3 +154,22 @@ def test_a_named_topic_brings_its_namespace_to_the_topics_not_named(tmp_path):
                      "--quiet"]) == 0
     a, b = (json.loads(p.read_text()) for p in (named, full))
     assert a["targets"] and a["targets"] == b["targets"]
+
+
+@pytest.mark.parametrize("options, targets", [
+    (["--fiducial-topic", "/cell_a/reg/fiducial_pairs"], "/cell_a/reg/targets"),
+    (["--working-topic", "/tracker/point", "--destination-topic", "/tracker/robot"],
+     "/tracker/targets"),
+    # a review, stop 31: /robot_point is in the root, so the two share no namespace; the
+    # targets were read from /tracker/targets (absent) and the bag's own lost without a word
+    (["--working-topic", "/tracker/point", "--destination-topic", "/robot_point"],
+     "/registration_node/targets"),
+    (["--fiducial-topic", "/pairs"], "/registration_node/targets"),
+])
+def test_topics_not_named_follow_a_namespace_only_when_the_named_ones_share_one(options,
+                                                                                 targets):
+    from rbc_registration.cli import build_parser
+    from rbc_registration.cli.evaluate import topics_from_args
+
+    topics, _ = topics_from_args(build_parser().parse_args(["evaluate", "bag", *options]))
+    assert topics.targets == targets
