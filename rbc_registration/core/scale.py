@@ -52,10 +52,15 @@ def unit_mismatch(fiducials: ArrayLike, targets: ArrayLike, inside_hull: Optiona
     # the median distance: one mistyped target does not make a unit mismatch of all of them
     far = float(np.median(np.linalg.norm(t - centre, axis=1))) / size
     spread = _rms_radius(t, t.mean(axis=0)) / size if len(t) >= 2 else 0.0
+    # Points in a larger unit shrink towards the frame's origin with their spread: a tight
+    # cluster of holes (one fixture, one hole sent twice) at the cell is no unit mismatch.
+    origin = np.zeros_like(centre)
+    shrunk = _rms_radius(t, origin) * UNIT_MISMATCH_FACTOR <= _rms_radius(f, origin)
     if far >= UNIT_MISMATCH_FACTOR:
         ratio, how = far, "farther from the fiducials' centre than the fiducials' size (median)"
-    elif 0 < spread <= 1 / UNIT_MISMATCH_FACTOR:
-        ratio, how = 1 / spread, "smaller in spread than the fiducials"
+    elif 0 < spread <= 1 / UNIT_MISMATCH_FACTOR and shrunk:
+        ratio, how = 1 / spread, ("smaller in spread (and nearer the frame's origin) than the "
+                                  "fiducials")
     else:
         return None
     where = "outside the fiducials' hull and " if inside_hull is not None else ""

@@ -65,6 +65,21 @@ def test_one_mistyped_target_is_no_unit_mismatch_of_all():
     assert "likely a unit mismatch between target truth and fiducials" in text
 
 
+def test_a_tight_cluster_beside_the_cell_is_no_unit_mismatch():
+    """A review, stop 31: two candidates 1 cm apart, 0.2 m beyond a 0.9 m cell in metres, were
+    'likely a unit mismatch (~107x smaller in spread)' and ~/suggest_next refused them. Points
+    in a larger unit shrink towards the origin with their spread; these did not."""
+    grid = np.stack(np.meshgrid(*[np.linspace(0.0, 0.9, 4)] * 3), axis=-1).reshape(-1, 3)
+    fiducials = grid + [0.5, 0.5, 0.2]
+    pair = np.array([[1.6, 0.9, 0.5], [1.61, 0.9, 0.5]])          # outside the hull
+    assert unit_mismatch(fiducials, pair, [False, False], "candidates", "candidates") is None
+    assert unit_mismatch(fiducials, pair[[0, 0, 0]], [False] * 3) is None   # one hole, thrice
+    mm_cell = fiducials * 1000.0                                   # the same holes in metres
+    text = unit_mismatch(mm_cell, fiducials[:5] + 0.01, [False] * 5, "candidates", "candidates")
+    assert text.startswith("all 5 candidates are outside the fiducials' hull and ~")
+    assert "smaller in spread (and nearer the frame's origin) than the fiducials" in text
+
+
 @pytest.mark.parametrize("size, metres_per_unit, unit, expected", [
     (500.0, 1.0, "m", "is 500 m, larger than any cell (100 m)"),      # mm read as m
     (0.5, 1e-3, "mm", "is 0.5 mm (0.0005 m), smaller than any cell"),  # m read as mm
