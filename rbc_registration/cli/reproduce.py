@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.constants import CELLS, MAX_REPEATS, MIN_REPRODUCE_REPEATS
-from .options import integer_in, name_list, seed
+from .options import integer_in, name_list, refuse_outputs_onto_inputs, seed
 
 
 def add_parser(sub: Any) -> None:
@@ -29,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the cells, print and write everything; exit 1 when a finding does not hold."""
     from ..io.reproduce import reproduce
 
+    refuse_outputs_onto_inputs([("--out", args.out)], [], directories=["--out"])
     doc = reproduce(args.out, seed=args.seed, repeats=args.repeats,
                     instantaneous_sets=args.instantaneous, cells=args.cells)
     failed = [f["finding"] for f in doc["findings"] if not f["holds"]]

@@ -101,6 +101,44 @@ def sigma_from_stats(stats: RepeatStats) -> Optional[float]:
     return math.sqrt(float(np.mean(measured)))
 
 
+#: A fiducial whose repeats scatter more than this many times the median fiducial's does is
+#: named (:func:`scattered_repeats`): by chance a per-point scatter ten times the median is
+#: below 1e-10 likely even for two measurements; one bad repeat makes it and dominates sigma.
+SCATTER_FACTOR = 10.0
+#: Fewer fiducials measured more than once give no median to compare with.
+SCATTER_MIN_FIDUCIALS = 5
+
+
+def scattered_repeats(ids: Sequence[str], stats: RepeatStats, unit: str) -> Optional[str]:
+    """The warning for fiducials whose repeats scatter far more than the others' (a bad repeat
+    within the outlier limit, e.g. 5 mm off on a 200 mm spacing), which raises sigma and so
+    lowers rho; ``None`` when none stands out (:data:`SCATTER_FACTOR`).
+
+    :param ids: the fiducials' ids; :param stats: their repeat statistics; :param unit: of the
+        lengths, for the text.
+    """
+    measured = np.flatnonzero(stats.counts >= 2)
+    if len(measured) < SCATTER_MIN_FIDUCIALS:
+        return None
+    variances = stats.variances[measured]
+    spread = np.sqrt(np.maximum(variances, 0.0))
+    median = float(np.median(spread))
+    wide = spread > SCATTER_FACTOR * median
+    if median <= 0 or not wide.any():
+        return None
+    order = np.argsort(-spread[wide])
+    named = ", ".join(f"{ids[k]!r} ({s:.4g} {unit})" for k, s in
+                      zip(measured[wide][order][:5], spread[wide][order][:5]))
+    more = f" and {int(wide.sum()) - 5} more" if wide.sum() > 5 else ""
+    with_them = math.sqrt(float(np.mean(variances)))
+    without = math.sqrt(float(np.mean(variances[~wide])))
+    return (f"fiducial(s) {named}{more}: their repeats scatter over {SCATTER_FACTOR:g}x the "
+            f"median of the {len(measured)} fiducials measured more than once ({median:.4g} "
+            f"{unit}, root of the summed per-axis variances): a bad repeat? sigma is "
+            f"{with_them:.4g} {unit} with them, {without:.4g} {unit} without, and rho follows "
+            f"it: remove the bad measurement, or set the outlier distance below its offset")
+
+
 def estimate_sigma(repeats: Sequence[ArrayLike]) -> Optional[float]:
     """Noise sigma from repeated measurements of fiducials (paper section 4).
 

@@ -10,6 +10,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .validation import rounding
+
 #: Every target outside the hull, and the targets' distance from the fiducials' centre (or
 #: their spread) this many times the fiducials' size (or this many times smaller): a likely
 #: unit mismatch (m vs mm is 1000, m vs cm 100).
@@ -165,3 +167,45 @@ def implausible_metres(points: ArrayLike) -> Optional[str]:
     return (f"the fiducials' RMS distance from their centroid is {size:.4g} m: ROS data are in "
             f"metres (REP 103); a recording in millimetres reads 1000x too large (and "
             f"outlier_distance, merge_radius are metres)")
+
+
+#: The uncorrected FRE above this fraction of the destination fiducials' RMS radius: the frames
+#: do not match rigidly (one axis in another unit, a scaled frame). Bias and noise of a real cell
+#: are far below it (the synthetic cells: at most ~0.1 %).
+NONRIGID_FRACTION = 0.02
+#: The corrected registration's FRE above this fraction of the uncorrected one after an
+#: iterative restoration: the Gauss-Newton steps did not restore the rigid-body condition (the
+#: corrected fiducials' FRE is ~1e-6 of it and less when they did).
+UNCONVERGED_FRACTION = 0.01
+#: ... and above this many times the coordinates' rounding (:func:`~.validation.rounding`).
+UNCONVERGED_ROUNDING = 1e3
+
+
+def rigidity_warnings(model: Any, unit: str) -> list[str]:
+    """The warnings of a built model whose frames do not match rigidly, or whose iterative
+    restoration did not converge (:data:`NONRIGID_FRACTION`, :data:`UNCONVERGED_FRACTION`).
+
+    :param model: an :class:`~.model.RbcModel`; :param unit: its lengths' unit, for the text.
+    """
+    out = []
+    fre_u, fre_c = model.uncorrected.fre_rms, model.corrected.fre_rms
+    dest = np.asarray(model.destination, dtype=float)
+    size = _rms_radius(dest, dest.mean(axis=0)) if len(dest) else 0.0
+    if size > 0 and fre_u > NONRIGID_FRACTION * size:
+        out.append(f"the frames do not match rigidly: the uncorrected FRE {fre_u:.4g} {unit} is "
+                   f"{100 * fre_u / size:.3g} % of the fiducials' RMS distance from their "
+                   f"centroid ({size:.4g} {unit}; a cell's bias and noise are well below 1 %): "
+                   f"one axis in another unit, or a scaled frame? check each axis of both "
+                   f"frames")
+    config = model.config
+    # exact data: both FREs are rounding, whatever their ratio
+    floor = UNCONVERGED_ROUNDING * rounding(model.working, model.destination)
+    if (config.restoration == "iterative" and fre_c > UNCONVERGED_FRACTION * fre_u
+            and fre_c > floor):
+        out.append(f"the restoration did not converge in {config.steps} step(s): the corrected "
+                   f"fiducials' FRE is {fre_c:.4g} {unit}, {100 * fre_c / fre_u:.3g} % of the "
+                   f"uncorrected {fre_u:.4g} {unit} (about 0 once the rigid-body condition is "
+                   f"restored; sigma_L does not show it on nearly coplanar or collinear "
+                   f"fiducials, whose distances barely change off their plane or line): use more "
+                   f"steps, the closed-form restoration, or dimension 2 for a plate")
+    return out

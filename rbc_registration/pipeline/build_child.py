@@ -17,8 +17,30 @@ import signal
 import sys
 
 
+#: prctl's PR_SET_PDEATHSIG (Linux): the signal the child gets when its parent dies.
+PR_SET_PDEATHSIG = 1
+
+
+def end_with_parent() -> None:
+    """On Linux, ask the kernel to SIGKILL this child when the node dies (a SIGKILLed node left
+    a child computing a multi-GB build for a minute, orphaned, beside the restarted node's new
+    one); if the node died before, end now. Elsewhere the child ends at the end of stdin."""
+    parent = os.getppid()
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent or parent == 1:   # the node died before prctl took effect
+        os._exit(0)
+
+
 def main() -> int:
     """Serve build requests until stdin ends; 0 then."""
+    end_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     replies = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
@@ -30,8 +52,8 @@ def main() -> int:
     while True:
         try:
             fiducials, settings, stamp_ns, previous = pickle.load(requests)
-        except EOFError:
-            return 0
+        except (EOFError, pickle.UnpicklingError):  # the node closed the pipe, or died
+            return 0                                  # while it wrote a request
         try:
             reply = ("ok", build_state(fiducials, settings, stamp_ns, previous))
         except Exception as exc:  # noqa: BLE001 - boundary: the node logs it, the child goes on

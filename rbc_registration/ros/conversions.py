@@ -85,8 +85,9 @@ def targets_to_array(targets: Sequence[PointStamped], working_frame: str,
         bad = np.flatnonzero(~(np.abs(xyz[:, 2]) <= MAX_ABS_COORDINATE))
         if bad.size:
             k = int(bad[0])
-            raise ValueError(f"target {k} has z = {xyz[k, 2]!r}: coordinates must be finite and "
-                             f"within ±{MAX_ABS_COORDINATE:g} (dimension 2 passes z through)")
+            raise ValueError(f"target {k} has z = {float(xyz[k, 2])!r}: coordinates must be "
+                             f"finite and within ±{MAX_ABS_COORDINATE:g} (dimension 2 passes z "
+                             "through)")
     return xyz[:, :dimension], xyz[:, 2].copy()
 
 

@@ -83,3 +83,25 @@ def test_a_swapped_target_truth_is_named_in_one_warning_line(tmp_path, capsys):
     assert all(f"{i!r} (" in err[0] for i in ids)
     assert "uncorrected TRE over 20 x the median of the targets" in err[0]
     assert err[0].endswith("or swapped with another target's? check the truth of these targets")
+
+
+def test_register_warns_of_frames_that_do_not_match_rigidly_and_of_one_scattered_repeat(
+        tmp_path, capsys):
+    """A review, stop 31: dz in metres with the rest in mm (FRE 213 mm on a 1 m cell, the
+    restoration unconverged), and one repeat 5 mm off, were registered without a word."""
+    cell, x, y = single("A", 0)
+    f = tmp_path / "f.csv"
+    write_fiducials(f, cell.fiducial_ids, [p[None] for p in x], [p[None] * [1, 1, 1e-3] for p in y])
+    assert cli.main(["register", str(f)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert [e[:70] for e in err] == [
+        "rbc-registration register: warning: the frames do not match rigidly: t",
+        "rbc-registration register: warning: the restoration did not converge i"], err
+    rng = np.random.default_rng(0)
+    work = [p + rng.normal(scale=0.02, size=(3, 3)) for p in x]
+    work[7][1, 2] += 5.0
+    write_fiducials(f, cell.fiducial_ids, work, [np.repeat(p[None], 3, axis=0) for p in y])
+    assert cli.main(["register", str(f)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(
+        f"rbc-registration register: warning: fiducial(s) '{cell.fiducial_ids[7]}' ("), err

@@ -173,3 +173,12 @@ def test_topics_not_named_follow_a_namespace_only_when_the_named_ones_share_one(
 
     topics, _ = topics_from_args(build_parser().parse_args(["evaluate", "bag", *options]))
     assert topics.targets == targets
+
+
+def test_reproduce_onto_a_file_is_one_line_naming_the_option(tmp_path, capsys):
+    """A review, stop 31: `reproduce --out FILE` ended in a bare `[Errno 17] File exists`."""
+    (tmp_path / "f.csv").write_text("id\n")
+    assert cli.main(["reproduce", "--cells", "RA", "--out", str(tmp_path / "f.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"rbc-registration reproduce: error: --out {tmp_path / 'f.csv'} cannot be "
+                   "written: it exists and is not a directory"]

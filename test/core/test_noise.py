@@ -46,3 +46,43 @@ def test_rule_validation(args, message):
 def test_repeats_with_nan():
     with pytest.raises(ValueError, match="NaN"):
         estimate_sigma([np.array([[0.0, np.nan], [1.0, 1.0]])])
+
+
+def _repeats(seed, n_fiducials=30, n=5, noise=0.02):
+    rng = np.random.default_rng(seed)
+    return [rng.uniform(0, 1000, 3) + rng.normal(scale=noise, size=(n, 3))
+            for _ in range(n_fiducials)]
+
+
+def test_one_bad_repeat_that_dominates_sigma_is_named():
+    """A review, stop 31: one repeat 5 mm off (within the 48 mm outlier limit) raised sigma 12x
+    and turned rho from 4.47 'apply' into 0.52 'do_not_apply', no word."""
+    from rbc_registration.core.noise import repeat_stats, scattered_repeats
+
+    repeats = _repeats(0)
+    ids = [f"F{k:02d}" for k in range(30)]
+    assert scattered_repeats(ids, repeat_stats(repeats), "mm") is None
+    repeats[3][1, 0] += 5.0
+    text = scattered_repeats(ids, repeat_stats(repeats), "mm")
+    assert text.startswith("fiducial(s) 'F03' (")
+    assert "over 10x the median of the 30 fiducials measured more than once" in text
+    sigma_with = estimate_sigma(repeats)
+    assert f"sigma is {sigma_with:.4g} mm with them" in text
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_noise_alone_names_no_fiducial_even_with_two_measurements(seed):
+    from rbc_registration.core.noise import repeat_stats, scattered_repeats
+
+    repeats = _repeats(seed, n_fiducials=200, n=2)
+    assert scattered_repeats([str(k) for k in range(200)], repeat_stats(repeats), "mm") is None
+
+
+def test_too_few_repeated_fiducials_or_no_scatter_name_nothing():
+    from rbc_registration.core.noise import repeat_stats, scattered_repeats
+
+    repeats = _repeats(1, n_fiducials=4)
+    repeats[0][0] += 100.0
+    assert scattered_repeats(list("abcd"), repeat_stats(repeats), "mm") is None
+    same = [np.repeat(np.array([[k, 0.0, 0.0]]), 3, axis=0) for k in range(8)]
+    assert scattered_repeats(list("abcdefgh"), repeat_stats(same), "mm") is None

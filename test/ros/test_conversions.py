@@ -65,3 +65,10 @@ def test_every_sigma_source_of_the_core_has_a_status_value():
 
     assert set(STATUS_SIGMA_SOURCE) == set(SIGMA_SOURCES)
     assert STATUS_SIGMA_SOURCE["given"] == "parameter"
+
+
+def test_a_2d_target_with_a_nan_z_is_named_without_a_numpy_repr():
+    msgs = [PointStamped(), PointStamped()]
+    msgs[1].point.z = float("nan")
+    with pytest.raises(ValueError, match=r"^target 1 has z = nan: coordinates must be finite"):
+        conv.targets_to_array(msgs, "tracker", 2)
