@@ -130,8 +130,9 @@ def scattered_repeats(ids: Sequence[str], stats: RepeatStats, unit: str) -> Opti
     named = ", ".join(f"{ids[k]!r} ({s:.4g} {unit})" for k, s in
                       zip(measured[wide][order][:5], spread[wide][order][:5]))
     more = f" and {int(wide.sum()) - 5} more" if wide.sum() > 5 else ""
-    with_them = math.sqrt(float(np.mean(variances)))
-    without = math.sqrt(float(np.mean(variances[~wide])))
+    with_them = sigma_from_stats(stats)
+    without = sigma_from_stats(stats.subset(np.setdiff1d(np.arange(len(stats.counts)),
+                                                         measured[wide])))
     return (f"fiducial(s) {named}{more}: their repeats scatter over {SCATTER_FACTOR:g}x the "
             f"median of the {len(measured)} fiducials measured more than once ({median:.4g} "
             f"{unit}, root of the summed per-axis variances): a bad repeat? sigma is "

@@ -206,22 +206,30 @@ def _play(messages: list[RawMessage], publishers: dict[str, Any], rate: float, l
             return published, passes
 
 
+def _refused() -> type:
+    """rclpy's exception for a message the middleware refused (imported when one was)."""
+    from rclpy._rclpy_pybind11 import RCLError
+
+    return RCLError
+
+
 def _publish(publisher: Any, message: RawMessage, published: int, total: int,
              rate: float) -> None:
     """Publish one message; while the subscribers are too slow to take it (the middleware
     refuses it once their history is full), wait for them to acknowledge what was sent and
     try again, so nothing is lost; a ValueError naming the topic after :data:`STALL_TIMEOUT_S`
-    without progress."""
-    from rclpy._rclpy_pybind11 import RCLError
-    from rclpy.duration import Duration
-
-    deadline = time.monotonic() + STALL_TIMEOUT_S
+    without progress. A message taken at once costs the publish alone."""
+    deadline: Optional[float] = None
     while True:
         try:
             publisher.publish(message.data)
             return
-        except RCLError as exc:
-            if time.monotonic() > deadline:
+        except _refused() as exc:                   # looked up only when publish raised
+            from rclpy.duration import Duration
+
+            now = time.monotonic()
+            deadline = now + STALL_TIMEOUT_S if deadline is None else deadline
+            if now > deadline:
                 raise ValueError(
                     f"publishing on {terminal(message.topic)} failed after {published} of "
                     f"{total} message(s): its subscribers took nothing for "
