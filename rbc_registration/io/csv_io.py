@@ -250,12 +250,32 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
                      f"field and in the same order ({shown}{more}): dropped as copies, not "
                      "counted as repeated measurements (a file pasted twice, two exports "
                      "joined? copies would make sigma too small)")
-    work, dest = [], []
+    work, dest, ignored = [], [], []
     for fid, group in groups.items():
-        w, t = _checked_repeats(path, fid, group, limits, notes)
+        w, t = _checked_repeats(path, fid, group, limits, ignored)
         work.append(np.array(w))
         dest.append(np.array(t))
+    notes += _ignored_rows_notes(path, ignored, len(parsed) - len(copied), limits[0])
     return FiducialTable(tuple(groups), tuple(work), tuple(dest), d, tuple(notes))
+
+
+#: Ignored working-frame repeats named one line each; beyond that, one summary line.
+IGNORED_ROWS_SHOWN = 3
+
+
+def _ignored_rows_notes(path: PathLike, ignored: list[str], rows: int,
+                        limit: tuple[float, str]) -> list[str]:
+    """The lines for the ignored working-frame repeats: each one's own line, but past
+    :data:`IGNORED_ROWS_SHOWN` one line for the rest, naming the limit (many ignored rows mean
+    a limit below the measurements' scatter, not many outliers)."""
+    if len(ignored) <= IGNORED_ROWS_SHOWN:
+        return ignored
+    value, name = limit
+    return ignored[:IGNORED_ROWS_SHOWN] + [
+        f"{path}: {len(ignored)} of {rows} rows ignored in all as working-frame outliers "
+        f"({len(ignored) - IGNORED_ROWS_SHOWN} more not named here), each farther than "
+        f"{name} {value:g} from its id's accepted repeats: if that is below the scatter of "
+        "the repeats, raise --outlier-distance (0 = off)"]
 
 
 #: Rows copied as a run at least this long (or as long as the file has ids, when fewer) are a

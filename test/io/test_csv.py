@@ -238,6 +238,22 @@ def test_a_working_repeat_far_from_its_siblings_is_dropped_with_one_line(tmp_pat
     assert read_fiducials(write(tmp_path, text), outlier_distance=0).notes == ()
 
 
+def test_an_outlier_limit_below_the_scatter_names_three_rows_and_sums_up_the_rest(tmp_path):
+    """A limit below the repeats' scatter ignores most repeats: three rows named, then one line
+    with the count and the limit (was one line per ignored row: 60 lines for 30 fiducials)."""
+    rng = np.random.default_rng(3)
+    rows = [f"p{k},{x + e[0]},{y + e[1]},{z + e[2]},{x},{y},{z}"
+            for k, (x, y, z) in enumerate(rng.uniform(0, 100, (12, 3)))
+            for e in rng.normal(0, 0.05, (3, 3))]
+    t = read_fiducials(write(tmp_path, H3 + "\n".join(rows) + "\n"), outlier_distance=0.001)
+    assert len(t.notes) == 4 and all("\n" not in n for n in t.notes)
+    assert all("row ignored" in n for n in t.notes[:3])
+    assert t.notes[3].endswith("raise --outlier-distance (0 = off)")
+    assert "24 of 36 rows ignored in all" in t.notes[3] and "21 more" in t.notes[3]
+    assert "outlier_distance 0.001" in t.notes[3]
+    assert [len(w) for w in t.working_repeats] == [1] * 12
+
+
 # -- repeated target / candidate ids: averaged when they agree, refused when they do not ---------
 TARGETS = "id,wx,wy,wz\na,0,0,0\nb,100,0,0\nc,0,100,0\n"
 
