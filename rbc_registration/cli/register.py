@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.evaluation import describe_misfits, gross_misfits, leave_one_out
     from ..core.model import build_model
     from ..core.repeats import describe_twins, twin_groups
-    from ..core.noise import scattered_repeats
+    from ..core.noise import identical_repeats, scattered_repeats
     from ..core.scale import implausible_size, rigidity_warnings
     from ..io.calibration_model import METRES_PER_UNIT
     from ..io.csv_io import read_fiducials, read_targets
@@ -101,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
     warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report,
                        model.destination, tgt.destination if tgt else None)
     for line in filter(None, (*rigidity_warnings(model, args.unit),
-                              scattered_repeats(model.ids, model.repeat_stats, args.unit))):
+                              scattered_repeats(model.ids, model.repeat_stats, args.unit),
+                              identical_repeats(model.repeat_stats))):
         warn("register", line)
     warn_blunders("register", model, args.unit)
     twins = describe_twins(fid.ids, fid.working,

@@ -175,7 +175,7 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
                                             repeat_statistics)
     if config.known_sigma is not None:
         sigma, source = config.known_sigma, "given"
-    elif sigma_est is not None:
+    elif sigma_est:     # identical repeats give 0: no noise estimate (noise.identical_repeats)
         sigma, source = sigma_est, "repeats"
     else:
         sigma, source = None, "unknown"

@@ -61,7 +61,11 @@ def repeat_stats(repeats: Sequence[ArrayLike], dim: Optional[int] = None) -> Rep
         g = as_points(group, f"repeats of fiducial {k}", dim, 1)
         dim = g.shape[1]
         counts.append(len(g))
-        variances.append(float(np.sum(np.var(g, axis=0, ddof=1))) if len(g) >= 2 else np.nan)
+        # about the first measurement: identical repeats give exactly 0 (np.var's mean of equal
+        # values can be off by an ulp: sigma 7e-14 mm, rho 9e11), and far from the origin the
+        # differences keep their digits
+        variances.append(float(np.sum(np.var(g - g[0], axis=0, ddof=1))) if len(g) >= 2
+                         else np.nan)
     return RepeatStats(np.array(counts, dtype=np.int64), np.array(variances, dtype=np.float64))
 
 
@@ -140,6 +144,20 @@ def scattered_repeats(ids: Sequence[str], stats: RepeatStats, unit: str) -> Opti
             f"it: remove the bad measurement, or set the outlier distance below its offset")
 
 
+def identical_repeats(stats: RepeatStats) -> Optional[str]:
+    """The warning when every fiducial measured more than once has identical repeats (a
+    spread of exactly 0): no noise estimate but a copied measurement or coordinates rounded
+    coarser than the noise, so :func:`~.model.build_model` takes sigma as unknown (a sigma of 0
+    is refused when given); ``None`` otherwise (or without repeats)."""
+    measured = stats.variances[stats.counts >= 2]
+    if measured.size == 0 or np.any(measured != 0):
+        return None
+    return (f"the repeats of all {measured.size} fiducial(s) measured more than once are "
+            "identical to their first measurement: no noise estimate (one measurement copied, "
+            "or coordinates rounded coarser than the noise?), sigma is taken as unknown; give "
+            "the noise as sigma")
+
+
 def estimate_sigma(repeats: Sequence[ArrayLike]) -> Optional[float]:
     """Noise sigma from repeated measurements of fiducials (paper section 4).
 
@@ -171,7 +189,7 @@ def assess(sigma_l0: float, sigma: Optional[float], rho_reject: float = 1.0,
 
     :param sigma_l0: sigma_L of the uncorrected fiducials (eq. 7).
     :param sigma: noise sigma (:func:`estimate_sigma`), or ``None`` when unknown. A sigma of exactly 0 (identical
-        repeats) gives rho = inf.
+        repeats, which :func:`~.model.build_model` takes as no estimate) gives rho = inf.
     :param rho_reject: below this rho correcting makes registration worse (paper: 1).
     :param rho_apply: from this rho on correcting helps (paper: 2.5).
     :raises ValueError: on negative or non-finite values, or ``rho_reject > rho_apply``.

@@ -102,10 +102,9 @@ def write_json(report: dict[str, Any], path: Path | str) -> None:
 
 
 def _rho_text(report: dict[str, Any]) -> str:
-    """rho as the text report shows it: JSON has no inf, so sigma = 0 (identical repeats)
-    gives rho null there, which is infinite, not unknown."""
-    if report["rho"] is None and report.get("sigma") == 0:
-        return "inf (sigma = 0)"
+    """rho as the text report shows it (null in JSON: unknown, sigma being unknown; a sigma of
+    0 is refused when given and identical repeats give none, :func:`~rbc_registration.core.
+    noise.identical_repeats`)."""
     if report["rho"] is None or "rho_thresholds" not in report:
         return _fmt(report["rho"])
     return format_rho(report["rho"], *report["rho_thresholds"], digits=4)
@@ -136,7 +135,7 @@ def decision_lines(decision: dict[str, Any], unit: str) -> list[str]:
             lines.append(f"    {name:<12} n/a ({c['note']})")
             continue
         p = "" if c["p_value"] is None else f"{c['p_value']:.2g}"
-        lines.append(f"    {name:<12} {c['median']:>10.4g} {c['rms']:>10.4g} "
+        lines.append(f"    {name:<12} {_fmt(c['median']):>10} {_fmt(c['rms']):>10} "
                      f"{_fmt(c['bound']):>10} {p:>9}")
     return lines
 

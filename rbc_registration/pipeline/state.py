@@ -13,7 +13,7 @@ from ..core.accumulator import FiducialSet
 from ..core.evaluation import blunders, describe_blunders, describe_misfits, gross_misfits
 from ..core.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
-from ..core.noise import scattered_repeats
+from ..core.noise import identical_repeats, scattered_repeats
 from ..core.repeats import describe_twins, twin_groups
 from ..core.scale import rigidity_warnings
 from .settings import Settings
@@ -116,6 +116,7 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
                            twin_groups(model.working, model.destination), "m")
     warning = "; ".join(filter(None, (left_out, *rigidity_warnings(model, "m"),
                                       scattered_repeats(model.ids, model.repeat_stats, "m"),
+                                      identical_repeats(model.repeat_stats),
                                       describe_blunders(blunders(model), "m"), twins)))
     return ModelState(model, fiducials, settings, "", stamp_ns, warning)
 

@@ -156,10 +156,10 @@ def test_the_smallest_valid_configuration_registers_end_to_end(tmp_path, dim, in
                                    model.corrections.mean(axis=0), atol=1e-9)
 
 
-def test_sigma_zero_shows_rho_infinite_not_unknown():
-    """Identical repeats (through the core: a CSV drops them as copies): sigma = 0 and
-    rho = inf (null in JSON, which has no inf); the text said 'rho n/a -> apply' while the
-    reason said 'rho = inf'."""
+def test_identical_repeats_show_sigma_and_rho_unknown():
+    """Identical repeats (through the core): no noise estimate, sigma and rho unknown in the
+    text as in JSON (once sigma = 0 and rho = inf, whose JSON null the text showed as
+    'rho n/a -> apply' while the reason said 'rho = inf')."""
     working = np.array([[0, 0, 0], [1000, 0, 0], [0, 1000, 0], [0, 0, 1000], [500, 500, 500]],
                        dtype=float)
     destination = working + [0, 0, 0]
@@ -168,4 +168,5 @@ def test_sigma_zero_shows_rho_infinite_not_unknown():
     model = build_model(working, destination, ModelConfig(dimension=3),
                         working_repeats=repeats)
     text = format_report(model_report(model, unit="mm"))
-    assert "rho          inf (sigma = 0) -> apply" in text, text
+    assert "rho          n/a -> unknown" in text, text
+    assert "sigma        n/a per point, n/a per axis (unknown)" in text, text

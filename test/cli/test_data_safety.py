@@ -5,6 +5,7 @@ written; the input is left byte for byte as it was."""
 import json
 import os
 
+import numpy as np
 import pytest
 
 from rbc_registration import cli
@@ -163,3 +164,19 @@ def test_an_output_ending_in_a_separator_is_refused(tmp_path, capsys, files, sub
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "names a directory, not a file" in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+def test_register_warns_when_every_repeat_is_identical(tmp_path, capsys):
+    """Each id's three rows identical (one measurement exported three times): sigma was
+    7e-14 mm and rho 9e11 'apply'; exactly 0 it crashed the kriging candidate on an exactly
+    rigid cell. Now sigma is unknown (as a given sigma of 0 is refused), with one warning line."""
+    rng = np.random.default_rng(6)
+    rows = "".join(f"p{k},{x:.4f},{y:.4f},{z:.4f},{x + 10:.4f},{y:.4f},{z:.4f}\n" * 3
+                   for k, (x, y, z) in enumerate(rng.uniform(0, 1000, (12, 3))))
+    f = tmp_path / "f.csv"
+    f.write_text("id,wx,wy,wz,dx,dy,dz\n" + rows)
+    assert cli.main(["register", str(f), "--json", str(tmp_path / "r.json")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert sum("are identical to their first measurement" in line for line in err) == 1, err
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["sigma"] is None and report["sigma_source"] == "unknown", report["sigma"]

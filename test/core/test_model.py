@@ -1,7 +1,5 @@
 """The model as the CLI and node use it: config validation, subsets, sigma sources, corrections."""
 
-import math
-
 import numpy as np
 import pytest
 
@@ -89,11 +87,19 @@ def test_target_errors_and_loo(ra):
 
 @pytest.mark.parametrize("interpolation", ["paper", "kriging"])
 def test_zero_sigma_from_identical_repeats(ra, interpolation):
-    """Identical repeats (a simulator, a rounding driver) give sigma = 0: rho is infinite and
-    the recommendation is 'apply'; the model is built and answers all the same."""
+    """Identical repeats (a simulator, a copied export, a rounding driver) are no noise
+    estimate: sigma is unknown (a given sigma of 0 is refused), rho and the paper's
+    recommendation too (was sigma 0, rho inf, 'apply', and a kriging candidate without noise
+    that failed on an exactly rigid cell); the model is built and answers all the same, and a
+    sigma given beside them is used."""
     x, y = ra.fiducial_means, ra.fiducial_truth
+    repeats = [np.repeat(p[None], 2, axis=0) for p in x]
     model = build_model(x, y, ModelConfig(dimension=2, interpolation=interpolation),
-                        working_repeats=[np.repeat(p[None], 2, axis=0) for p in x])
-    assert model.sigma == 0.0 and model.sigma_source == "repeats"
-    assert model.rho == math.inf and model.recommendation == "apply"
+                        working_repeats=repeats)
+    assert model.sigma is None and model.sigma_source == "unknown"
+    assert model.rho is None and model.recommendation == "unknown"
     assert np.isfinite(model.correct(ra.target_means).corrected).all()
+    given = build_model(x, y, ModelConfig(dimension=2, interpolation=interpolation, sigma=0.1),
+                        working_repeats=repeats)
+    assert given.sigma == 0.1 and given.sigma_source == "given"
+    assert given.rho == pytest.approx(given.restoration.sigma_l0 / 0.1)

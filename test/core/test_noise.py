@@ -86,3 +86,31 @@ def test_too_few_repeated_fiducials_or_no_scatter_name_nothing():
     assert scattered_repeats(list("abcd"), repeat_stats(repeats), "mm") is None
     same = [np.repeat(np.array([[k, 0.0, 0.0]]), 3, axis=0) for k in range(8)]
     assert scattered_repeats(list("abcdefgh"), repeat_stats(same), "mm") is None
+
+
+def test_identical_repeats_give_sigma_exactly_zero_and_a_warning():
+    """Bit-identical repeats gave sigma 7e-14 mm (np.var's mean of equal values is off by an
+    ulp) and rho 9e11 'apply' without a word; now sigma is 0 and one line names the cause."""
+    from rbc_registration.core.noise import identical_repeats, repeat_stats, sigma_from_stats
+    rng = np.random.default_rng(4)
+    points = rng.uniform(0, 1000, (30, 3)) + 0.1234567
+    stats = repeat_stats([np.repeat(p[None], 3, axis=0) for p in points])
+    assert sigma_from_stats(stats) == 0.0
+    text = identical_repeats(stats)
+    assert text is not None and "\n" not in text and "all 30 fiducial(s)" in text
+    # one fiducial with a real scatter: a noise estimate, no warning; none without repeats
+    noisy = [np.repeat(p[None], 3, axis=0) for p in points]
+    noisy[5] = noisy[5] + rng.normal(0, 0.01, (3, 3))
+    assert identical_repeats(repeat_stats(noisy)) is None
+    assert identical_repeats(repeat_stats([p[None] for p in points])) is None
+
+
+def test_repeat_variance_keeps_its_digits_far_from_the_origin():
+    """The variance about the first measurement: at a 1e6 offset it is the centred one's."""
+    from rbc_registration.core.noise import repeat_stats
+    rng = np.random.default_rng(5)
+    group = rng.normal(0, 0.01, (5, 3))
+    near = repeat_stats([group]).variances[0]
+    far = repeat_stats([group + 1e6]).variances[0]
+    assert near == pytest.approx(float(np.sum(np.var(group, axis=0, ddof=1))), rel=1e-12)
+    assert far == pytest.approx(near, rel=1e-6)
