@@ -66,6 +66,10 @@ def _positive(name: str, value: float, allow_zero: bool = False) -> float:
     return v
 
 
+#: An unknown id's message names at most this many known ids.
+KNOWN_IDS_SHOWN = 20
+
+
 class FiducialAccumulator:
     """Collects measurements per fiducial; validates, assigns ids, rejects outliers.
 
@@ -297,7 +301,10 @@ class FiducialAccumulator:
         :raises KeyError: for an unknown fiducial id (the message lists the known ones).
         """
         if fiducial_id not in self._fiducials:
-            known = ", ".join(self._order[:20]) + (" ..." if len(self._order) > 20 else "")
+            # quoted: an id may hold a comma or a space (known: 'a, b', 'c' is two ids)
+            more = len(self._order) - KNOWN_IDS_SHOWN
+            known = (", ".join(quote(f) for f in self._order[:KNOWN_IDS_SHOWN])
+                     + (f" and {more} more" if more > 0 else ""))
             raise KeyError(f"unknown fiducial id {quote(fiducial_id)} (known: {known or 'none'})")
         return EnabledChange(fiducial_id, bool(enabled))
 

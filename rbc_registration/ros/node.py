@@ -9,6 +9,7 @@ never wait for a recompute. See msg_docs/README.md for every topic, service, par
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from typing import Any, Callable, Optional
@@ -64,6 +65,10 @@ INPUT = {"reliable": QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL,
                                    reliability=ReliabilityPolicy.BEST_EFFORT)}
 
 
+#: The node's name unless remapped (``-r __node:=NAME``).
+NODE_NAME = "registration_node"
+
+
 class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, PlanningMixin, Node):
     """The registration node (see the module docstring and msg_docs/README.md).
 
@@ -84,7 +89,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
     A node that fails half way is destroyed again (lock released, threads stopped).
     """
 
-    def __init__(self, node_name: str = "registration_node", *,
+    def __init__(self, node_name: str = NODE_NAME, *,
                  build: Optional[Callable[..., ModelState]] = None,
                  write_snapshot: Callable[[str, str], None] = write_atomic,
                  clock: Callable[[], float] = time.monotonic, **kwargs: Any) -> None:
@@ -295,6 +300,28 @@ def start_failure(exc: BaseException) -> str:
     return "cannot start: " + text.replace("\r", "\\r").replace("\n", "\\n")
 
 
+def startup_logger_name(args: Optional[list[str]] = None) -> str:
+    """The logger name of the node as the command line remaps it (``-r __node:=NAME``,
+    ``-r __ns:=/ns``, also as ``registration_node:__node:=NAME``; the last rule wins), for the
+    lines logged before the node exists or after it failed: with several nodes in a launch,
+    the FATAL line names the one that could not start. rclpy's node loggers join the
+    namespace and name with dots."""
+    argv = sys.argv if args is None else args
+    name, namespace = NODE_NAME, ""
+    for flag, rule in zip(argv, argv[1:]):
+        if flag not in ("-r", "--remap"):
+            continue
+        target, sep, value = rule.partition(":=")
+        node, _, key = target.rpartition(":")
+        if not sep or (node and node != NODE_NAME) or not value:
+            continue
+        if key == "__node":
+            name = value
+        elif key == "__ns":
+            namespace = value
+    return ".".join(part for part in (*namespace.split("/"), name) if part)
+
+
 def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
     """Console script ``registration_node``: spin the node on a single-threaded executor.
 
@@ -311,12 +338,13 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
     ``calibration_file`` does not validate; any other error before the node spins is one line
     too, ``cannot start: <exception type>: <message>``.
     """
+    logger = get_logger(startup_logger_name(args))
     try:
         rclpy.init(args=args)
     except RuntimeError as exc:  # rcl's error, e.g. a malformed --ros-args rule: one line
         hint = (" (an empty value is written -p name:=\"''\")"
                 if "parameter override rule" in str(exc) else "")
-        get_logger("registration_node").fatal(f"cannot start: {exc}{hint}")
+        logger.fatal(f"cannot start: {exc}{hint}")
         raise SystemExit(1) from None
     node: Optional[RegistrationNode] = None
     code, spinning = 0, False
@@ -339,19 +367,19 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
             # signal came between spin's context check and spin_once) failed on it. A
             # requested stop, not a failure.
             if spinning:
-                get_logger("registration_node").debug(
+                logger.debug(
                     f"stopped (shutdown requested): {type(exc).__name__}: {exc}")
             else:
-                get_logger("registration_node").info(
+                logger.info(
                     "stopped while starting (shutdown requested)")
         elif isinstance(exc, (ValueError, ParameterException, OSError)):
-            get_logger("registration_node").fatal(start_failure(exc))
+            logger.fatal(start_failure(exc))
             code = 1
         elif node is not None:
             raise             # a failure while spinning keeps its traceback
         else:                 # any other error while starting (e.g. reading a calibration_file)
             reason = start_failure(exc).removeprefix("cannot start: ")
-            get_logger("registration_node").fatal(f"cannot start: {type(exc).__name__}: "
+            logger.fatal(f"cannot start: {type(exc).__name__}: "
                                                   f"{reason}")
             code = 1
     finally:

@@ -120,7 +120,20 @@ def test_long_values_are_quoted_short():
         acc.prepare("a", [0, 0, 0], [1, 1, 1], working_frame="c" * 2**20)
     with pytest.raises(KeyError) as info:
         acc.prepare_enabled("z" * 2**20, False)
-    assert "(1048576 characters) (known: a)" in str(info.value) and len(str(info.value)) < 200
+    assert "(1048576 characters) (known: 'a')" in str(info.value) and len(str(info.value)) < 200
+
+
+def test_an_unknown_id_names_the_known_ones_quoted():
+    """A review: the known ids were listed unquoted ('known: a, b, c' for the ids 'a, b' and
+    'c' too) and cut with '...'; now each is quoted and the rest counted."""
+    acc = make()
+    for k, fid in enumerate(["a, b", "c"] + [f"h{n}" for n in range(25)]):
+        acc.add(fid, [k, 0, 0], [k, 1, 1])
+    with pytest.raises(KeyError) as info:
+        acc.prepare_enabled("zz", False)
+    text = str(info.value.args[0])
+    assert text.startswith("unknown fiducial id 'zz' (known: 'a, b', 'c', 'h0', ")
+    assert text.endswith("'h17' and 7 more)"), text
 
 
 def test_outlier_in_either_frame_is_rejected():

@@ -331,7 +331,7 @@ class TestNodeBadInput(RosTestBase):
         r = self.srv(SetFiducialEnabled, "set_fiducial_enabled",
                      SetFiducialEnabled.Request(fiducial_id="nope", enabled=False))
         assert not r.success
-        assert r.message.startswith("unknown fiducial id 'nope' (known: H00, H01, H02,")
+        assert r.message.startswith("unknown fiducial id 'nope' (known: 'H00', 'H01', 'H02',")
         r = self.srv(SetFiducialEnabled, "set_fiducial_enabled",
                      SetFiducialEnabled.Request(fiducial_id="x" * MB, enabled=False))
         assert not r.success and "(1048576 characters)" in r.message and len(r.message) < 300

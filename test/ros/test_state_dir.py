@@ -144,6 +144,8 @@ def test_start_up_failures_are_one_fatal_line(tmp_path, case):
         stop_process(proc)
     lines, text = fatal_lines(tmp_path / "node.log")     # before: tracebacks, or it started
     assert len(lines) == 1 and want in lines[0], text[-2000:]
+    # the node as remapped (-r __node:=rbc_fatal), not the default registration_node
+    assert "[rbc_fatal]:" in lines[0], lines[0]
     assert "AttributeError" not in text
     if case == "journal-is-a-symlink":
         assert (tmp_path / "victim").read_text() == "precious\n"
@@ -255,3 +257,19 @@ class TestRecomputeDoesNotBlock(RosTestBase):
         # answer waited for a large part of it.
         assert during >= 5
         assert ms.max() < 0.5 * rebuild_s * 1e3
+
+
+@pytest.mark.parametrize("argv, name", [
+    ([], "registration_node"),
+    (["--ros-args", "-r", "__node:=cell_a"], "cell_a"),
+    (["--ros-args", "--remap", "__ns:=/line2/cell", "-r", "__node:=reg"], "line2.cell.reg"),
+    (["--ros-args", "-r", "registration_node:__node:=mine", "-r", "other:__node:=theirs"],
+     "mine"),
+    (["--ros-args", "-r", "__node:=a", "-r", "__node:=b"], "b"),
+    (["--ros-args", "-r", "/chatter:=/talk", "-p", "__node:=x"], "registration_node"),
+])
+def test_start_up_lines_name_the_node_as_remapped(argv, name):
+    """A review: with several nodes in a launch every FATAL start-up line said
+    ``[registration_node]``, whichever node failed."""
+    from rbc_registration.ros.node import startup_logger_name
+    assert startup_logger_name(["registration_node", *argv]) == name
