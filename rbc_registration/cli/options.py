@@ -142,6 +142,17 @@ def node_name(text: str) -> str:
     return text
 
 
+def frame_id(text: str) -> str:
+    """An argument type: a tf frame id (:func:`rbc_registration.core.frames.frame_id_problem`,
+    the node's rule for its frame parameters)."""
+    from ..core.frames import frame_id_problem
+
+    problem = frame_id_problem(text)
+    if problem:
+        raise argparse.ArgumentTypeError(f"{text!r}: a frame id {problem}")
+    return text
+
+
 def name_list(what: str) -> Callable[[str], tuple[str, ...]]:
     """An argument type: a comma-separated, non-empty list of ``what`` (e.g. fiducial ids)."""
     def parse(text: str) -> tuple[str, ...]:

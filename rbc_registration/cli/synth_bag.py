@@ -9,7 +9,7 @@ from typing import Any
 from ..core.constants import CELLS, MAX_REPEATS
 from ..io.bag.records import PERIODS, STORAGES, SYNTH_PERIOD_S
 from ..io.escape import terminal
-from .options import integer_in, node_name, number_in, seed
+from .options import frame_id, integer_in, node_name, number_in, seed
 
 
 def add_parser(sub: Any) -> None:
@@ -27,8 +27,11 @@ def add_parser(sub: Any) -> None:
                          "with --points, a period up to twice pair_slop makes points ambiguous)")
     sb.add_argument("--points", action="store_true",
                     help="fiducials as PointStamped pairs without ids instead of FiducialPair")
-    sb.add_argument("--working-frame", default="tracker")
-    sb.add_argument("--destination-frame", default="world")
+    sb.add_argument("--working-frame", type=frame_id, default="tracker",
+                    help="frame id of the working points (default tracker)")
+    sb.add_argument("--destination-frame", type=frame_id, default="world",
+                    help="frame id of the destination points (default world); not the "
+                         "working frame")
     sb.add_argument("--node-name", type=node_name, default="registration_node",
                     help="topics are /NODE_NAME/fiducial_pairs etc.")
     sb.add_argument("--quiet", action="store_true", help="no progress output")
@@ -42,6 +45,11 @@ def run(args: argparse.Namespace) -> int:
     from ..io.bag.synthetic import cell_message_count, cell_messages
     from ..io.bag.writer import write_bag
 
+    from ..core.frames import same_frame_problem
+
+    same = same_frame_problem("--working-frame", args.working_frame, args.destination_frame)
+    if same:
+        raise ValueError(f"--destination-frame {same}")
     cell = make_cell(args.cell, seed=args.seed, repeats=args.repeats)
     topics = Topics.for_node(args.node_name)
     n_fid, n_tgt, total = cell_message_count(cell, args.points)

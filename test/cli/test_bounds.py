@@ -122,6 +122,27 @@ def test_a_bad_node_name_is_one_clear_line(tmp_path, capsys, command, name):
     assert not (tmp_path / "bag").exists()
 
 
+@pytest.mark.parametrize("args, message", [
+    (["--working-frame", ""], "argument --working-frame: '': a frame id must not be empty"),
+    (["--working-frame", "my tracker"], "must not contain whitespace"),
+    (["--destination-frame", "/world"], "must not start with '/' (tf2 refuses it)"),
+    (["--working-frame", "world"], "--destination-frame must differ from --working-frame, "
+                                   "both are 'world'"),
+])
+def test_synth_bag_refuses_a_frame_the_node_refuses(tmp_path, capsys, args, message):
+    """A review: ``synth-bag`` wrote bags with frames '' or 'a b', or both 'world', which the
+    node (its frame parameters, the same rule) cannot be started with to replay them."""
+    code = 0
+    try:
+        code = cli.main(["synth-bag", str(tmp_path / "bag"), "--cell", "RA", "--quiet", *args])
+    except SystemExit as done:
+        code = done.code
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "bag").exists()
+
+
 def test_the_longest_node_name_gives_topics_rcl_takes():
     """A 250-character name passed and its replay ended in rclpy's InvalidTopicNameException
     traceback (topics at most 255 - 8 characters; a review)."""
