@@ -108,13 +108,18 @@ def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
     if text:
         lines.append(text)
     if truth is not None and destination is not None:
+        import numpy as np
+
+        truth = np.asarray(truth, dtype=float)
+        truth = truth[np.isfinite(truth).all(axis=1)]     # the targets with truth
+    if truth is not None and destination is not None and len(truth):
         # no hull in the destination frame: the size ratio alone (100x) decides
         text = unit_mismatch(destination, truth, None, "target truth")
         if text:
             lines.append("the targets' truth: " + text)
         elif "tre_u" in report["targets"][0]:   # one unit: a target's truth that stands out
-            text = describe_truth_blunders([t["id"] for t in report["targets"]],
-                                           [t["tre_u"] for t in report["targets"]],
+            known = [t for t in report["targets"] if t["tre_u"] is not None]
+            text = describe_truth_blunders([t["id"] for t in known], [t["tre_u"] for t in known],
                                            report.get("unit", ""))
             if text:
                 lines.append(text)

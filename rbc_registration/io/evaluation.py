@@ -148,13 +148,15 @@ def write_report_dir(ev: Evaluation, out: Path, title: str = "") -> list[Path]:
     paths.append(figures.fiducial_map(out / "fiducial_map.png", model.working * MM,
                                       model.corrections * MM, "mm", None if tw is None
                                       else tw * MM, "fiducials and corrections (working frame)"))
-    err = None
-    if ev.targets is not None and ev.targets.destination is not None:
-        err = target_errors(model, ev.targets.working, ev.targets.destination)
-        paths.append(figures.tre_per_target(out / "tre_per_target.png", ev.targets.ids,
+    truth = ev.targets.destination if ev.targets is not None else None
+    has = np.isfinite(truth).all(axis=1) if truth is not None else np.zeros(0, bool)
+    if has.any():                       # the targets with truth (a row of NaN: none)
+        ids = [t for t, h in zip(ev.targets.ids, has) if h]
+        err = target_errors(model, ev.targets.working[has], truth[has])
+        paths.append(figures.tre_per_target(out / "tre_per_target.png", ids,
                                             {"TRE_u": err.tre_u * MM, "TRE_c": err.tre_c * MM},
                                             "TRE per target", "mm"))
-        paths.append(figures.delta_tre(out / "delta_tre.png", ev.targets.ids, err.delta * MM,
+        paths.append(figures.delta_tre(out / "delta_tre.png", ids, err.delta * MM,
                                        "dTRE = TRE_c - TRE_u", "mm"))
     cv = model.decision.cross_validation.errors
     if cv:
@@ -166,6 +168,12 @@ def write_report_dir(ev: Evaluation, out: Path, title: str = "") -> list[Path]:
     (out / "report.md").write_text(markdown(ev, [p.name for p in paths if p.suffix == ".png"],
                                             title))
     paths.append(out / "report.md")
+    # a directory reused from an earlier report: its figures this one does not make (no truth,
+    # no cross-validation) would sit beside it as if they were this bag's
+    for name in set(REPORT_FILES) - {p.name for p in paths}:
+        stale = out / name
+        if stale.is_file() and not stale.is_symlink():
+            stale.unlink()
     return paths
 
 
@@ -237,17 +245,21 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
              *decision_markdown(rep["decision"], m.decision.reason_in(MM))]
     if rep["targets"] and "tre_u" in rep["targets"][0]:
         s = rep["summary"]
+        n_truth = sum(t["tre_u"] is not None for t in rep["targets"])
         lines += ["## Targets", "",
                   f"Median TRE_u {_mm(s['tre_u_median'])}, TRE_c {_mm(s['tre_c_median'])}; "
                   f"corrections improved {100 * s['fraction_improved']:.0f}% of "
-                  f"{len(rep['targets'])} targets.", "",
+                  f"{n_truth} targets"
+                  + (f" with truth ({len(rep['targets']) - n_truth} without: TRE n/a)"
+                     if n_truth < len(rep["targets"]) else "") + ".", "",
                   f"The points to use (per the decision): median TRE {_mm(s['tre_median'])}; "
                   f"{_percent(s['fraction_within_bound'])} of targets within their 95 % bound.",
                   "", "| target | TRE | expected TRE | 95 % bound | TRE_u | TRE_c | dTRE "
                   "| inside hull |", "|---|---|---|---|---|---|---|---|"]
         lines += [f"| {md_text(t['id'])} | {_mm(t['tre'])} | {_mm(t['expected_tre'])} | "
                   f"{_mm(t['tre_bound'])} | {_mm(t['tre_u'])} | {_mm(t['tre_c'])} | "
-                  f"{_mm(t['tre_c'] - t['tre_u'], 3)} | {'yes' if t['inside_hull'] else 'no'} |"
+                  f"{_mm(None if t['tre_u'] is None else t['tre_c'] - t['tre_u'], 3)} | "
+                  f"{'yes' if t['inside_hull'] else 'no'} |"
                   for t in rep["targets"]]
         lines.append("")
     elif rep["targets"]:

@@ -71,10 +71,17 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
     }
     if targets_working is not None and len(target_ids):
         tc = model.correct(targets_working)
-        err = (target_errors(model, targets_working, targets_destination)
-               if targets_destination is not None else None)
-        tre = (np.linalg.norm(tc.destination - np.asarray(targets_destination, float)[
-            :, :cfg.dimension], axis=1) if err is not None else None)
+        # truth per target: a row of NaN is a target without truth (a bag's target message
+        # with a NaN destination); TRE and the summary are over the targets with truth
+        truth = (None if targets_destination is None
+                 else np.asarray(targets_destination, float)[:, :cfg.dimension])
+        has = (np.zeros(len(target_ids), bool) if truth is None
+               else np.isfinite(truth).all(axis=1))
+        err = (target_errors(model, np.asarray(targets_working, float)[has], truth[has])
+               if has.any() else None)
+        tre = (np.linalg.norm(tc.destination[has] - truth[has], axis=1)
+               if err is not None else None)
+        at = np.cumsum(has) - 1                 # a target's row among those with truth
         for k, tid in enumerate(target_ids):
             entry = {"id": tid, "destination": _vec(tc.destination[k]),
                      "expected_tre": _num(tc.expected_tre[k]), "tre_bound": _num(tc.tre_bound[k]),
@@ -82,10 +89,14 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
                      "corrected": _vec(tc.corrected[k]), "correction": _vec(tc.correction[k]),
                      "inside_hull": bool(tc.inside_hull[k]),
                      "expected_error": _num(tc.expected_error[k])}
-            if err is not None:
-                entry.update(tre=_num(tre[k]), tre_u=_num(err.tre_u[k]), tre_c=_num(err.tre_c[k]))
+            if err is not None and has[k]:
+                i = at[k]
+                entry.update(tre=_num(tre[i]), tre_u=_num(err.tre_u[i]), tre_c=_num(err.tre_c[i]))
+            elif err is not None:               # no truth for this one: no TRE
+                entry.update(tre=None, tre_u=None, tre_c=None)
             report["targets"].append(entry)
-        report["summary"] = {**_summary(err), **_destination_summary(tre, tc.tre_bound)}
+        report["summary"] = {**_summary(err), **_destination_summary(
+            tre, tc.tre_bound[has] if err is not None else tc.tre_bound)}
     if loo is not None:
         report["loo"] = {**{k: v for k, v in _summary(loo).items() if k != "fraction_improved"},
                          "fraction_improved": _summary(loo)["fraction_improved"],
@@ -170,7 +181,9 @@ def format_report(report: dict[str, Any]) -> str:
             row = (f"  {terminal(t['id']):<10} {eps:>16.4g} "
                    f"{'in' if t['inside_hull'] else 'OUT':>5} {_fmt(t['expected_tre']):>10} "
                    f"{_fmt(t['tre_bound']):>10}")
-            if truth:
+            if truth and t["tre_u"] is None:    # this target has no truth
+                row += f" {'n/a':>10} {'n/a':>10} {'n/a':>10} {'n/a':>10}"
+            elif truth:
                 row += (f" {t['tre']:>10.4g} {t['tre_u']:>10.4g} {t['tre_c']:>10.4g} "
                         f"{t['tre_c'] - t['tre_u']:>+10.3g}")
             lines.append(row)

@@ -137,7 +137,8 @@ def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
 def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
                      source: str = "input") -> Optional[Targets]:
     """Targets from recorded ``FiducialPair`` targets, repeats of an id averaged (first-seen
-    order); truth only when every target has a finite destination point.
+    order); the truth of an id is the mean of its messages with a finite destination point, a
+    row of NaN when it has none, and ``None`` when no target has truth.
 
     :param source: names the data in error messages (e.g. the bag's path); every message also
         names the target's id and the target message's number (from 1, in bag order).
@@ -166,15 +167,34 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
         raise EvaluationError(f"{which(int(bad[0]))}: working point has NaN or inf "
                               f"({bad.size} such target message(s))")
     limit = settings.outlier_distance
-    frames = [("working", work, limit, "outlier_distance")]
-    if np.all(np.isfinite(dest)):
-        frames.append(("destination", dest, limit, "outlier_distance"))
-    conflict = first_conflict(ids, frames)
-    if conflict is not None:
-        raise EvaluationError(f"{which(conflict.row)}: conflicts with the earlier repeats of its "
-                              f"id: {conflict.message}")
-    unique, (working, truth) = mean_by_id(ids, work, dest)
-    return Targets(unique, working, truth if np.all(np.isfinite(truth)) else None, "bag")
+    with_truth = np.flatnonzero(np.isfinite(np.asarray(dest, dtype=float)).all(axis=1))
+    for rows, name, points in ((range(len(ids)), "working", work),
+                               (with_truth, "destination", dest)):
+        conflict = first_conflict([ids[k] for k in rows], [(name, [points[k] for k in rows],
+                                                             limit, "outlier_distance")])
+        if conflict is not None:
+            raise EvaluationError(f"{which(rows[conflict.row])}: conflicts with the earlier "
+                                  f"repeats of its id: {conflict.message}")
+    unique, (working,) = mean_by_id(ids, work)
+    if not with_truth.size:
+        return Targets(unique, working, None, "bag")
+    known, (means,) = mean_by_id([ids[k] for k in with_truth], [dest[k] for k in with_truth])
+    truth = np.full_like(working, np.nan)
+    row = {t: k for k, t in enumerate(unique)}
+    truth[[row[t] for t in known]] = means
+    return Targets(unique, working, truth, "bag")
+
+
+def truth_note(targets: Targets) -> str:
+    """The note on targets without truth ("" when every target has truth)."""
+    if targets.destination is None:
+        return "targets have no truth: TRE not computed"
+    blind = [t for t, row in zip(targets.ids, targets.destination) if not np.isfinite(row).all()]
+    if not blind:
+        return ""
+    return (f"{len(blind)} of {len(targets.ids)} targets have no truth (a NaN destination "
+            f"point), e.g. {blind[0]!r}: their TRE is not computed, the TRE summary is over the "
+            f"other {len(targets.ids) - len(blind)}")
 
 
 def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
@@ -202,8 +222,7 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
                                  f"{acc.log_lines[0]})" if acc.log_lines else ""))
     if targets is None:
         targets = recorded_targets(recorded, settings, source)
-    notes = ("targets have no truth: TRE not computed",) \
-        if targets is not None and targets.destination is None else ()
+    notes = (truth_note(targets),) if targets is not None and truth_note(targets) else ()
     notes += acc.stamp_warnings
     return OfflineModel(state.model, state.fiducials, settings, targets, acc.rejected, notes,
                         state.warning, tuple(acc.first_rejections.items()))

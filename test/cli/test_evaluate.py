@@ -408,6 +408,60 @@ def test_targets_without_truth_get_a_table_of_corrections(tmp_path):
     assert md.count("\n| T") == len(cell.target_ids) == 80
 
 
+def test_targets_without_truth_beside_targets_with_it(tmp_path, capsys):
+    """A review: one target message with a NaN destination dropped the truth of every target
+    (no TRE at all). Now TRE is computed for the targets with truth, the others are n/a, the
+    summary is over those with truth, and one note names the count."""
+    cell = make_cell("RA", seed=0)
+    blind = {cell.target_ids[3], cell.target_ids[10]}
+    nan = (float("nan"),) * 3
+    full = list(cell_messages(cell))
+    write_bag(tmp_path / "all", full, progress=False)
+    write_bag(tmp_path / "part", [m._replace(destination=nan) if m.topic == DEFAULT_TOPICS.targets
+                                  and m.fiducial_id in blind else m for m in full],
+              progress=False)
+    ref = run_json(["evaluate", str(tmp_path / "all"), "--quiet"], tmp_path / "a.json")
+    out = tmp_path / "out"
+    got = run_json(["evaluate", str(tmp_path / "part"), "--quiet", "--out", str(out)],
+                   tmp_path / "p.json")
+    text = capsys.readouterr().out
+    assert text.count("2 of 80 targets have no truth") == 1, text
+    by_id = {t["id"]: t for t in got["targets"]}
+    for t in ref["targets"]:
+        if t["id"] in blind:
+            assert by_id[t["id"]]["tre"] is None and by_id[t["id"]]["tre_u"] is None
+            assert by_id[t["id"]]["correction"] == t["correction"]
+        else:
+            assert (by_id[t["id"]]["tre_u"], by_id[t["id"]]["tre_c"]) == (t["tre_u"], t["tre_c"])
+    kept = [t for t in got["targets"] if t["tre_u"] is not None]
+    assert len(kept) == 78
+    assert got["summary"]["tre_u_median"] == pytest.approx(np.median([t["tre_u"] for t in kept]))
+    assert got["summary"]["tre_median"] == pytest.approx(np.median([t["tre"] for t in kept]))
+    md = (out / "report.md").read_text()
+    assert "of 78 targets with truth (2 without: TRE n/a)" in md
+    assert (out / "tre_per_target.png").is_file()
+
+
+def test_a_reused_out_directory_keeps_no_figure_of_the_earlier_report(tmp_path):
+    """A review: ``--out`` reused for a bag without truth kept the earlier bag's TRE figures
+    beside the new report. Files that are not the report's own are left alone."""
+    cell = make_cell("RA", seed=0)
+    write_bag(tmp_path / "truth", cell_messages(cell), progress=False)
+    nan = (float("nan"),) * 3
+    write_bag(tmp_path / "blind", [m._replace(destination=nan) if m.topic ==
+                                   DEFAULT_TOPICS.targets else m for m in cell_messages(cell)],
+              progress=False)
+    out = tmp_path / "out"
+    assert cli.main(["evaluate", str(tmp_path / "truth"), "--quiet", "--out", str(out)]) == 0
+    assert (out / "tre_per_target.png").is_file() and (out / "delta_tre.png").is_file()
+    (out / "notes.txt").write_text("mine\n")
+    assert cli.main(["evaluate", str(tmp_path / "blind"), "--quiet", "--out", str(out)]) == 0
+    left = {p.name for p in out.iterdir()}
+    assert left == {"report.json", "report.md", "mismatch_histograms.png", "fiducial_map.png",
+                    "cv_errors.png", "notes.txt"}, left
+    assert left - {"notes.txt"} <= set(REPORT_FILES)
+
+
 def test_report_md_quotes_the_reason_in_mm(tmp_path):
     write_bag(tmp_path / "bag", cell_messages(make_cell("RA", seed=0)), progress=False)
     out = tmp_path / "out"
