@@ -27,6 +27,12 @@ Pairs are made as soon as the second point arrives, so a pair whose second candi
 later is already made; that candidate is refused (and says so). Stamps that repeat (the
 stream's previous stamp again) are not checked: pairing then goes by arrival order
 (:attr:`PairingResult.repeated`).
+
+*Duplicates*: a point equal to one of its stream seen before (the same coordinates, frame and
+stamp: a topic recorded twice, a point republished; among the stream's last
+:data:`COPY_MEMORY` distinct points) is dropped as a duplicate before any of this, so its copy
+makes no point ambiguous (a bag with both point topics recorded twice lost
+every measurement to ``ambiguous``).
 """
 
 from __future__ import annotations
@@ -45,6 +51,9 @@ _OTHER = {WORKING: DESTINATION, DESTINATION: WORKING}
 #: A stream going back by more than this [s] (and the slop) restarts (module docstring): longer
 #: than a late delivery, shorter than a clock jump or a driver restart.
 RESTART_AFTER = 1.0
+#: Distinct points per stream a copy is looked for among (module docstring): two recordings of a
+#: topic merged lie far closer together than this.
+COPY_MEMORY = 256
 
 
 @dataclass(frozen=True)
@@ -76,6 +85,8 @@ class DroppedPoint(NamedTuple):
     reason: str
     #: Refused as ambiguous (module docstring), not merely unpairable.
     ambiguous: bool = False
+    #: An exact copy of a point of its stream seen before (module docstring).
+    duplicate: bool = False
 
 #: The advice in the reason of an ambiguous point.
 AMBIGUOUS_HINT = "lower pair_slop below half the measurement period"
@@ -109,6 +120,10 @@ class StampPairer:
         self._previous: dict[str, float] = {}       # each stream's last stamp
         # The points seen recently (buffered, paired or refused), for the ambiguity rule.
         self._seen: dict[str, deque[StampedPoint]] = {WORKING: deque(), DESTINATION: deque()}
+        # The last COPY_MEMORY distinct points of each stream, for the duplicate rule (a set to
+        # look them up in O(1), the deque to forget the oldest).
+        self._recent: dict[str, deque[StampedPoint]] = {WORKING: deque(), DESTINATION: deque()}
+        self._recent_set: dict[str, set[StampedPoint]] = {WORKING: set(), DESTINATION: set()}
         self.n_pairs = 0
         self.n_dropped = 0
         self.n_ambiguous = 0    # points refused as ambiguous (also counted in n_dropped)
@@ -131,7 +146,8 @@ class StampPairer:
 
     def clear(self) -> None:
         """Drop every buffered point without reporting it (e.g. on reset)."""
-        for buf in (*self._buffers.values(), *self._seen.values()):
+        for buf in (*self._buffers.values(), *self._seen.values(), *self._recent.values(),
+                    *self._recent_set.values()):
             buf.clear()
         self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
         self._previous = {}
@@ -169,6 +185,11 @@ class StampPairer:
         if not math.isfinite(stamp):
             raise ValueError(f"{stream} point stamp must be finite, got {stamp_s!r}")
         point = StampedPoint((float(arr[0]), float(arr[1]), float(arr[2])), str(frame_id), stamp)
+        if self._is_copy(stream, point):
+            self.n_dropped += 1
+            return PairingResult((), (DroppedPoint(
+                stream, point, f"duplicate: the same {stream} point and stamp {stamp:.9f} as "
+                "one before (a topic recorded twice or republished?)", duplicate=True),))
         other = _OTHER[stream]
         dropped: list[DroppedPoint] = []
         repeated = self._previous.get(stream) == stamp
@@ -200,6 +221,19 @@ class StampPairer:
         self.n_dropped += len(dropped)
         self.n_ambiguous += sum(d.ambiguous for d in dropped)
         return PairingResult(pairs, tuple(dropped), repeated)
+
+    def _is_copy(self, stream: str, point: StampedPoint) -> bool:
+        """Whether ``point`` equals (coordinates, frame and stamp) one of the last
+        :data:`COPY_MEMORY` distinct points of ``stream``; if not, it is remembered."""
+        known = self._recent_set[stream]
+        if point in known:
+            return True
+        recent = self._recent[stream]
+        recent.append(point)
+        known.add(point)
+        if len(recent) > COPY_MEMORY:
+            known.discard(recent.popleft())
+        return False
 
     def _ambiguous(self, stream: str, point: StampedPoint, dropped: list[DroppedPoint]) -> bool:
         """Whether ``point`` is ambiguous (module docstring), then refused with its reason in

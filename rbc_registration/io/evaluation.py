@@ -112,9 +112,10 @@ def duplicates_line(ev: Evaluation, source: str) -> str:
     n = ev.rejected.get("duplicate", 0)
     if not n:
         return ""
-    return (f"{source}: {n} exact duplicate measurement(s) dropped (the fiducial, stamp and "
-            "points of an accepted one: a bag recorded twice or a topic republished?); each is "
-            "one measurement, not a repeat")
+    return (f"{source}: {n} exact duplicate message(s) dropped (the fiducial, stamp and "
+            "points of an accepted measurement, or the point and stamp of a point seen before: "
+            "a bag recorded twice or a topic republished?); each is one measurement, not a "
+            "repeat")
 
 
 def with_warnings(ev: Evaluation, lines: Sequence[str]) -> Evaluation:

@@ -180,7 +180,7 @@ class Ingest:
         """One ``~/working_point`` / ``~/destination_point``: the pairs it completed that were
         accepted (empty: none; truthy when the model must be rebuilt). Unpairable points are
         rejected as malformed, ambiguous ones (:mod:`~rbc_registration.core.pairing`) as
-        ambiguous.
+        ambiguous, a copy of a point seen before as a duplicate.
 
         :param recorded: when given, extended by the pairs that are recorded now: the accepted
             ones and those rejected as a ``duplicate`` of a recorded measurement (so that
@@ -193,7 +193,8 @@ class Ingest:
                 self._rejected(self._acc.reject("malformed", str(exc)))
                 return []
             for dropped in result.dropped:
-                reason = "ambiguous" if dropped.ambiguous else "malformed"
+                reason = ("ambiguous" if dropped.ambiguous else
+                          "duplicate" if dropped.duplicate else "malformed")
                 self._rejected(self._acc.reject(reason, f"unpaired {dropped.stream} point "
                                                 f"dropped: {dropped.reason}"))
             if result.repeated and stream not in self.stamp_warnings:

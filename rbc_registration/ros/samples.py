@@ -44,6 +44,13 @@ class Latest(NamedTuple):
     sampled: bool = False       # recorded already by a ~/take_sample
 
 
+def _same_point(a: PointStamped, b: PointStamped) -> bool:
+    """Whether two points have the same coordinates, frame and stamp."""
+    return ((a.point.x, a.point.y, a.point.z, a.header.frame_id, a.header.stamp.sec,
+             a.header.stamp.nanosec) == (b.point.x, b.point.y, b.point.z, b.header.frame_id,
+                                         b.header.stamp.sec, b.header.stamp.nanosec))
+
+
 class SampleTaker:
     """The latest working and destination points of a node, and the tf buffer of the 'tf'
     source (created when first needed).
@@ -58,8 +65,14 @@ class SampleTaker:
         self._buffer: Any = None
 
     def update(self, stream: str, msg: PointStamped) -> None:
-        """Remember ``msg`` as the latest point of ``stream`` (``working`` / ``destination``)."""
+        """Remember ``msg`` as the latest point of ``stream`` (``working`` / ``destination``).
+        A copy of the latest point (the same coordinates, frame and stamp: a topic bridged or
+        recorded twice, which the pairer drops as a duplicate) is the same measurement: it keeps
+        the latest point's marks (paired, sampled) and its time of arrival."""
         with self._lock:
+            old = self._latest.get(stream)
+            if old is not None and _same_point(old.msg, msg):
+                return
             self._latest[stream] = Latest(msg, self._node.get_clock().now().nanoseconds)
 
     def mark_paired(self, pairs: Sequence[Any]) -> None:

@@ -288,11 +288,32 @@ def test_exact_duplicate_pairs_are_dropped_with_one_warning(tmp_path, capsys):
     twice = run_json(["evaluate", str(tmp_path / "twice"), "--quiet"], tmp_path / "2.json")
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
-    assert (f"warning: bag {tmp_path / 'twice'}: {len(pairs)} exact duplicate measurement(s) "
+    assert (f"warning: bag {tmp_path / 'twice'}: {len(pairs)} exact duplicate message(s) "
             f"dropped") in err[0]
     assert twice["n_measurements"] == once["n_measurements"] == len(pairs)
     assert_same_numbers(exact_part(once), exact_part(twice))
     assert twice["bag"]["messages"][DEFAULT_TOPICS.fiducial_pairs] == 2 * len(pairs)
+
+
+def test_point_topics_recorded_twice_give_the_model_of_the_bag_recorded_once(tmp_path, capsys):
+    """A review: both point topics recorded twice (each message right after its copy) made
+    every point one with two candidates within pair_slop: every measurement was refused as
+    ambiguous and there was no model. The copies are duplicates, dropped with one line."""
+    msgs = list(cell_messages(make_cell("RA", seed=0), points=True))
+    doubled = [c for m in msgs for c in ([m, m] if m.topic in (DEFAULT_TOPICS.working_point,
+                                                              DEFAULT_TOPICS.destination_point)
+                                         else [m])]
+    write_bag(tmp_path / "once", msgs, progress=False)
+    write_bag(tmp_path / "twice", doubled, progress=False)
+    once = run_json(["evaluate", str(tmp_path / "once"), "--quiet"], tmp_path / "1.json")
+    assert "warning" not in capsys.readouterr().err
+    twice = run_json(["evaluate", str(tmp_path / "twice"), "--quiet"], tmp_path / "2.json")
+    err = capsys.readouterr().err.strip().splitlines()
+    copies = len(doubled) - len(msgs)
+    assert len(err) == 1 and f"{copies} exact duplicate message(s) dropped" in err[0], err
+    assert twice["n_measurements"] == once["n_measurements"] == copies // 2
+    assert twice["bag"]["rejected"].get("ambiguous", 0) == 0
+    assert_same_numbers(exact_part(once), exact_part(twice))
 
 
 def test_one_id_and_stamp_with_other_points_is_refused(tmp_path, capsys):

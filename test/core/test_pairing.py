@@ -38,6 +38,44 @@ def test_two_candidates_within_the_slop_are_ambiguous_not_nearest_in_time():
     assert p.n_ambiguous == 3 and p.n_pairs == 0
 
 
+@pytest.mark.parametrize("order", ["copies-after-each", "copies-after-both", "copies-late"])
+def test_a_copied_point_is_a_duplicate_not_a_second_candidate(order):
+    """A review: both point topics recorded twice (two recorders) made every destination point
+    one with two working points within the slop: every measurement refused as ambiguous. A
+    copy (coordinates, frame and stamp) is dropped as a duplicate and pairing goes on."""
+    w = [([k, 0, 0], "tracker", 1.0 + k) for k in range(4)]
+    d = [([k, 1, 0], "world", 1.001 + k) for k in range(4)]
+    if order == "copies-after-each":
+        events = [e for k in range(4) for e in (("w", w[k]), ("w", w[k]), ("d", d[k]),
+                                                  ("d", d[k]))]
+    elif order == "copies-after-both":
+        events = [e for k in range(4) for e in (("w", w[k]), ("d", d[k]), ("w", w[k]),
+                                                  ("d", d[k]))]
+    else:       # each copy after the next measurement's point (two recorders, one behind)
+        events = [("w", w[0]), ("d", d[0])] + [
+            e for k in range(1, 4) for e in (("w", w[k]), ("w", w[k - 1]), ("d", d[k]),
+                                              ("d", d[k - 1]))] + [("w", w[3]), ("d", d[3])]
+    p = StampPairer(slop=0.05)
+    pairs, dropped = [], []
+    for stream, args in events:
+        res = (p.add_working if stream == "w" else p.add_destination)(*args)
+        pairs += res.pairs
+        dropped += res.dropped
+    assert [(q.working.xyz[0], q.destination.xyz[0]) for q in pairs] == [(k, k) for k in range(4)]
+    assert len(dropped) == 8 and all(x.duplicate and not x.ambiguous for x in dropped)
+    assert "duplicate: the same working point and stamp 1.000000000 as one before" in \
+        dropped[0].reason
+    assert p.n_ambiguous == 0
+
+
+def test_a_point_at_a_stamp_seen_before_elsewhere_is_no_duplicate():
+    """Only an exact copy is a duplicate: the same stamp with other coordinates is not."""
+    p = StampPairer(slop=0.05)
+    p.add_working([0, 0, 0], "tracker", 1.0)
+    res = p.add_working([0, 0, 1e-9], "tracker", 1.0)
+    assert not any(x.duplicate for x in res.dropped) and res.repeated
+
+
 def test_stale_points_are_dropped_and_counted():
     p = StampPairer(slop=0.01)
     p.add_working([0, 0, 0], "tracker", 1.0)         # its destination never comes

@@ -131,6 +131,22 @@ class TestTakeSample(NodeTestBase):
         self.send(node, "working_point", self.cell["working"][1], "tracker")   # no partner
         assert self.take(node, "H05").success and node.status().n_measurements == 2
 
+    def test_a_copy_of_a_paired_point_is_a_duplicate_and_not_sampled_again(self):
+        """Pair mode, the point topics bridged twice: the copy of a paired working point made
+        it the latest point again, unmarked, so ~/take_sample recorded the pair's measurement a
+        second time. The pairer drops the copy as a duplicate and the copy keeps the mark."""
+        node = self.make_node()
+        self.send(node, "working_point", self.cell["working"][0], "tracker")
+        self.send(node, "destination_point", self.cell["destination"][0], "world")
+        wait_for(lambda: node.status().n_measurements == 1, what="the stamp pair")
+        pub = self.publisher(node, PointStamped, "working_point")
+        pub.publish(_point(self.cell["working"][0], "tracker"))
+        wait_for(lambda: node.status().n_rejected_duplicate == 1, what="the copy refused")
+        self.ros.client.destroy_publisher(pub)
+        r = self.take(node, "H05")
+        assert not r.success and "recorded already, paired by stamp" in r.message, r.message
+        assert node.status().n_measurements == 1 and node.status().n_rejected_ambiguous == 0
+
     def test_a_sampled_point_is_not_recorded_again_by_its_stamp_partner(self):
         """Pair mode: a working point sampled while buffered was recorded again when its
         destination partner arrived (a review: two identical measurements of H1)."""
