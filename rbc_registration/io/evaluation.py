@@ -266,9 +266,11 @@ def markdown(ev: Evaluation, images: list[str], title: str = "") -> str:
     elif rep["targets"]:
         lines += ["## Targets", "",
                   f"{len(rep['targets'])} targets without truth (TRE not computed): the "
-                  "correction |eps| of each and the expected error of the point to use (per the "
-                  "decision).", "",
-                  "| target | correction \\|eps\\| | expected TRE | 95 % bound | inside hull |",
+                  f"correction |eps| of each by the {rep['interpolation']} interpolation (applied "
+                  "or not as the decision says) and the expected error of the point to use (per "
+                  "the decision).", "",
+                  f"| target | correction \\|eps\\| ({rep['interpolation']}) | expected TRE | "
+                  "95 % bound | inside hull |",
                   "|---|---|---|---|---|"]
         lines += [f"| {md_text(t['id'])} | {_mm(_norm(t['correction']))} | "
                   f"{_mm(t['expected_tre'])} | {_mm(t['tre_bound'])} | "

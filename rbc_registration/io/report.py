@@ -171,7 +171,10 @@ def format_report(report: dict[str, Any]) -> str:
     if report["targets"]:
         truth = "tre_u" in report["targets"][0]
         lines.append("")
-        head = (f"  {'target':<10} {'correction |eps|':>16} {'hull':>5} {'exp. TRE':>10} "
+        # eps(T) of the configured interpolation (the JSON's `correction`), which the decision
+        # may not apply: the header names it
+        eps_head = f"|eps| ({report['interpolation']})"
+        head = (f"  {'target':<10} {eps_head:>16} {'hull':>5} {'exp. TRE':>10} "
                 f"{'95% bound':>10}")
         if truth:
             head += f" {'TRE':>10} {'TRE_u':>10} {'TRE_c':>10} {'dTRE':>10}"

@@ -170,3 +170,18 @@ def test_identical_repeats_show_sigma_and_rho_unknown():
     text = format_report(model_report(model, unit="mm"))
     assert "rho          n/a -> unknown" in text, text
     assert "sigma        n/a per point, n/a per axis (unknown)" in text, text
+
+
+@pytest.mark.parametrize("interpolation", ["paper", "kriging"])
+def test_the_target_table_names_whose_correction_it_shows(interpolation):
+    """A review: the per-target 'correction |eps|' is the configured interpolation's, which the
+    decision may not apply (cv chose kriging, or uncorrected); the header now names it."""
+    cell = make_cell("A", seed=0)
+    model = build_model(cell.fiducial_means, cell.fiducial_truth,
+                        ModelConfig(dimension=3, interpolation=interpolation))
+    text = format_report(model_report(model, cell.target_ids[:2], cell.target_means[:2],
+                                      unit="mm"))
+    head = next(line for line in text.splitlines() if line.strip().startswith("target"))
+    assert f"|eps| ({interpolation})" in head, head
+    eps = np.linalg.norm(model.correct(cell.target_means[:1]).correction[0])
+    assert f"{eps:.4g}" in text
