@@ -48,6 +48,7 @@ from . import conversions as conv
 from . import params, samples, saved
 from .batching import batched_subscription
 from .guards import guard_service
+from .outputs import output_events
 from .param_callbacks import ParametersMixin
 from .planning import PlanningMixin
 from .publishing import PublishingMixin
@@ -146,12 +147,14 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if not self._tf.available:
             self.get_logger().warning(f"static tf off: {self._tf.missing}; /tf_static is not "
                                       "published (~/transform still is)")
-        self._pub_transform = self.create_publisher(TransformStamped, "~/transform", LATCHED)
-        self._pub_transform_u = self.create_publisher(TransformStamped, "~/transform_uncorrected",
-                                                      LATCHED)
-        self._pub_status = self.create_publisher(RegistrationStatus, "~/status", LATCHED)
-        self._pub_markers = self.create_publisher(MarkerArray, "~/markers", LATCHED)
-        self._pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        def publisher(msg_type: Any, topic: str, qos: Any) -> Any:
+            return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
+
+        self._pub_transform = publisher(TransformStamped, "~/transform", LATCHED)
+        self._pub_transform_u = publisher(TransformStamped, "~/transform_uncorrected", LATCHED)
+        self._pub_status = publisher(RegistrationStatus, "~/status", LATCHED)
+        self._pub_markers = publisher(MarkerArray, "~/markers", LATCHED)
+        self._pub_diagnostics = publisher(DiagnosticArray, "/diagnostics", 10)
 
         inputs, qos = MutuallyExclusiveCallbackGroup(), INPUT[s.input_reliability]
         for msg_type, topic, callback in (

@@ -16,6 +16,8 @@ from typing import Any, Optional
 from geometry_msgs.msg import TransformStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from .outputs import output_events
+
 try:  # tf2_msgs is a ROS package (not on PyPI; the development venv builds vendor/tf2_msgs)
     from tf2_msgs.msg import TFMessage
     MISSING = ""
@@ -41,7 +43,8 @@ class StaticTf:
         self._type = message_type
         self.missing = MISSING if message_type is None else ""
         self._entries: dict[str, TransformStamped] = {}
-        self._pub = (node.create_publisher(message_type, TOPIC, STATIC_QOS)
+        self._pub = (node.create_publisher(message_type, TOPIC, STATIC_QOS,
+                                           event_callbacks=output_events())
                      if message_type is not None else None)
 
     @property
