@@ -169,6 +169,39 @@ def implausible_metres(points: ArrayLike) -> Optional[str]:
             f"outlier_distance, merge_radius are metres)")
 
 
+#: Read in 2D, the fiducials' z in the two frames differing (beyond a constant) by more than this
+#: fraction of their xy RMS radius: the frames' xy planes are not parallel (a plate tilted in
+#: one frame), and its xy projections are not rigid (a 1 % tilt distorts distances by ~5e-5).
+TILT_FRACTION = 0.01
+
+
+def dropped_z_warning(working_z: ArrayLike, destination_z: ArrayLike,
+                      destination_xy: ArrayLike, unit: str) -> Optional[str]:
+    """The warning for fiducials read in 2D whose ignored z says the frames' xy planes are not
+    parallel, or ``None``: the range of z_destination - z_working (a constant offset is a
+    shift along z, harmless) over :data:`TILT_FRACTION` of the destination's xy RMS radius.
+
+    :param working_z: (J,) the working frame's z of the fiducials (NaN: not given, ignored);
+    :param destination_z: (J,) the destination's; :param destination_xy: (J, 2) the points
+        read; :param unit: of the lengths, for the text ("": none named).
+    """
+    diff = np.asarray(destination_z, dtype=float) - np.asarray(working_z, dtype=float)
+    xy = np.asarray(destination_xy, dtype=float)
+    keep = np.isfinite(diff)
+    if keep.sum() < 3:
+        return None
+    spread = float(np.ptp(diff[keep]))
+    size = _rms_radius(xy, xy.mean(axis=0))
+    if not spread > TILT_FRACTION * size:
+        return None
+    u = f" {unit}" if unit else ""
+    return (f"read in 2D, the fiducials' z (ignored) differ between the frames by up to "
+            f"{spread:.4g}{u} beyond a constant ({100 * spread / size:.2g} % of the cell's "
+            f"RMS radius {size:.4g}{u}): the frames' xy planes are not parallel (a plate "
+            f"tilted in one of them?) and the xy points are not the same rigid shape in both; "
+            f"read the fiducials in 3D")
+
+
 #: The uncorrected FRE above this fraction of the destination fiducials' RMS radius: the frames
 #: do not match rigidly (one axis in another unit, a scaled frame). Bias and noise of a real cell
 #: are far below it (the synthetic cells: at most ~0.1 %).
