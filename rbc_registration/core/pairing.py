@@ -14,7 +14,10 @@ stamped far in the future, or a driver restarted with a new clock, starts again 
 stamp: its buffered points later than it by more than ``slop`` are dropped as out of order, and
 its latest stamp is the new one. Otherwise a single future stamp would make every later point of
 the other stream look stale until a reset. A point merely late (back by less) is paired or
-dropped as before, and the points after it stay buffered.
+dropped as before, and the points after it stay buffered. A point whose other stream is ahead
+of it by more than that (both drivers restarted, the other not yet heard from on its new clock)
+is buffered, not dropped at once: the other stream's next point pairs it (it restarted too) or
+drops it as stale (it did not); before, both clocks stepping back lost the first pair.
 
 *Ambiguous* points: a working point and a destination point are one measurement only when each
 is the other's only point within ``slop`` among the points of the other stream seen so far
@@ -208,8 +211,12 @@ class StampPairer:
             self.n_pairs += 1
         elif ambiguous:
             pass        # refused, with its reason in `dropped`
-        elif self._latest[other] > stamp + self._slop:
+        elif (self._latest[other] > stamp + self._slop
+              and not self._latest[other] > stamp + max(self._slop, RESTART_AFTER)):
             # The other stream is already past this point's window: it can never be paired.
+            # (Far past, by more than RESTART_AFTER, it is on the clock this stream left: both
+            # drivers restarted, its next point restarts it too and pairs with this one, or
+            # drops this one as stale; module docstring.)
             dropped.append(DroppedPoint(stream, point, f"no {other} point within "
                                         f"{self._slop:g} s of stamp {stamp:.9f}"))
         else:

@@ -76,6 +76,29 @@ def test_a_point_at_a_stamp_seen_before_elsewhere_is_no_duplicate():
     assert not any(x.duplicate for x in res.dropped) and res.repeated
 
 
+def test_both_clocks_stepping_back_keep_the_first_pair():
+    """A review: both drivers restarted with new clocks (stamps back from 100 s to 5 s): the
+    first working point was dropped at once, its destination partner then refused as ambiguous,
+    and the first pair lost. It is buffered now and pairs; if only one driver restarted, the
+    other stream's next point drops it as stale."""
+    p = StampPairer(slop=0.02)
+    for t in (100.0, 101.0, 102.0):
+        p.add_working([t, 0, 0], "tracker", t)
+        assert len(p.add_destination([t, 1, 0], "world", t + 0.001).pairs) == 1
+    for t in (5.0, 6.0, 7.0):
+        first = p.add_working([t, 0, 0], "tracker", t)
+        second = p.add_destination([t, 1, 0], "world", t + 0.001)
+        assert first.dropped == second.dropped == () and len(second.pairs) == 1, t
+        assert second.pairs[0].working.xyz == (t, 0, 0)
+    one = StampPairer(slop=0.02)
+    one.add_working([100, 0, 0], "tracker", 100.0)
+    one.add_destination([100, 1, 0], "world", 100.001)
+    assert one.add_working([5, 0, 0], "tracker", 5.0).dropped == ()
+    later = one.add_destination([101, 1, 0], "world", 101.001)
+    assert [d.reason for d in later.dropped] == [
+        "no destination point within 0.02 s of stamp 5.000000000"]
+
+
 def test_stale_points_are_dropped_and_counted():
     p = StampPairer(slop=0.01)
     p.add_working([0, 0, 0], "tracker", 1.0)         # its destination never comes
