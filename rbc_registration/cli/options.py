@@ -110,8 +110,10 @@ def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
     if truth is not None and destination is not None:
         import numpy as np
 
+        from ..pipeline.targets import with_truth
+
         truth = np.asarray(truth, dtype=float)
-        truth = truth[np.isfinite(truth).all(axis=1)]     # the targets with truth
+        truth = truth[with_truth(truth, len(truth))]
     if truth is not None and destination is not None and len(truth):
         # no hull in the destination frame: the size ratio alone (100x) decides
         text = unit_mismatch(destination, truth, None, "target truth")

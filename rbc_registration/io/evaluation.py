@@ -23,7 +23,7 @@ from ..core.noise import format_rho
 from ..core.model import RbcModel
 from ..pipeline.offline import evaluate_inputs
 from ..pipeline.settings import Settings
-from ..pipeline.targets import Targets
+from ..pipeline.targets import Targets, with_truth
 from . import figures
 from .bag.records import BagContents
 from .escape import markdown as md_text
@@ -150,8 +150,8 @@ def write_report_dir(ev: Evaluation, out: Path, title: str = "") -> list[Path]:
                                       model.corrections * MM, "mm", None if tw is None
                                       else tw * MM, "fiducials and corrections (working frame)"))
     truth = ev.targets.destination if ev.targets is not None else None
-    has = np.isfinite(truth).all(axis=1) if truth is not None else np.zeros(0, bool)
-    if has.any():                       # the targets with truth (a row of NaN: none)
+    has = with_truth(truth, len(ev.targets.ids) if ev.targets is not None else 0)
+    if has.any():
         ids = [t for t, h in zip(ev.targets.ids, has) if h]
         err = target_errors(model, ev.targets.working[has], truth[has])
         paths.append(figures.tre_per_target(out / "tre_per_target.png", ids,

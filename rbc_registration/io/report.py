@@ -15,6 +15,7 @@ from ..core.noise import format_rho
 from ..pipeline.jsonable import json_number as _num
 from ..pipeline.jsonable import json_vector as _vec
 from ..pipeline.jsonable import registration_json
+from ..pipeline.targets import with_truth
 from .escape import terminal
 
 
@@ -75,8 +76,7 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
         # with a NaN destination); TRE and the summary are over the targets with truth
         truth = (None if targets_destination is None
                  else np.asarray(targets_destination, float)[:, :cfg.dimension])
-        has = (np.zeros(len(target_ids), bool) if truth is None
-               else np.isfinite(truth).all(axis=1))
+        has = with_truth(truth, len(target_ids))
         err = (target_errors(model, np.asarray(targets_working, float)[has], truth[has])
                if has.any() else None)
         tre = (np.linalg.norm(tc.destination[has] - truth[has], axis=1)

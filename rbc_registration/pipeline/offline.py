@@ -23,7 +23,7 @@ from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
 from .settings import SPECS, Settings
 from .state import build_state
-from .targets import Targets, first_conflict, mean_by_id
+from .targets import Targets, first_conflict, mean_by_id, with_truth
 
 Input = Union[PairMessage, PointMessage]
 
@@ -167,18 +167,18 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
         raise EvaluationError(f"{which(int(bad[0]))}: working point has NaN or inf "
                               f"({bad.size} such target message(s))")
     limit = settings.outlier_distance
-    with_truth = np.flatnonzero(np.isfinite(np.asarray(dest, dtype=float)).all(axis=1))
+    known_rows = np.flatnonzero(with_truth(dest, len(dest)))
     for rows, name, points in ((range(len(ids)), "working", work),
-                               (with_truth, "destination", dest)):
+                               (known_rows, "destination", dest)):
         conflict = first_conflict([ids[k] for k in rows], [(name, [points[k] for k in rows],
                                                              limit, "outlier_distance")])
         if conflict is not None:
             raise EvaluationError(f"{which(rows[conflict.row])}: conflicts with the earlier "
                                   f"repeats of its id: {conflict.message}")
     unique, (working,) = mean_by_id(ids, work)
-    if not with_truth.size:
+    if not known_rows.size:
         return Targets(unique, working, None, "bag")
-    known, (means,) = mean_by_id([ids[k] for k in with_truth], [dest[k] for k in with_truth])
+    known, (means,) = mean_by_id([ids[k] for k in known_rows], [dest[k] for k in known_rows])
     truth = np.full_like(working, np.nan)
     row = {t: k for k, t in enumerate(unique)}
     truth[[row[t] for t in known]] = means
@@ -189,7 +189,8 @@ def truth_note(targets: Targets) -> str:
     """The note on targets without truth ("" when every target has truth)."""
     if targets.destination is None:
         return "targets have no truth: TRE not computed"
-    blind = [t for t, row in zip(targets.ids, targets.destination) if not np.isfinite(row).all()]
+    blind = [t for t, has in zip(targets.ids, with_truth(targets.destination,
+                                                         len(targets.ids))) if not has]
     if not blind:
         return ""
     return (f"{len(blind)} of {len(targets.ids)} targets have no truth (a NaN destination "

@@ -23,6 +23,15 @@ class Targets(NamedTuple):
     source: str
 
 
+def with_truth(destination: Optional[ArrayLike], count: int) -> NDArray[np.bool_]:
+    """Which of ``count`` targets have truth: a finite row of ``destination`` (K, d); a row
+    with a NaN is a target without (a bag's target message with a NaN destination point);
+    ``None``: none has."""
+    if destination is None:
+        return np.zeros(count, dtype=bool)
+    return np.isfinite(np.asarray(destination, dtype=np.float64)).all(axis=1)
+
+
 def rows_by_id(ids: Sequence[str]) -> dict[str, list[int]]:
     """The row indices of each id (one id per row), the ids in order of first appearance."""
     rows: dict[str, list[int]] = {}
