@@ -79,3 +79,19 @@ def test_one_point_under_two_ids_is_the_served_models_warning():
     assert state.error == ""
     assert ("1 point(s) measured under two or more ids, the same place in both frames: 'H01' "
             "and 'H01 ' (") in state.warning
+
+
+def test_identical_repeats_are_the_served_models_warning_and_sigma_unknown():
+    """The node's accumulator sees the same point again under new stamps (a driver that
+    re-sends its last measurement): the repeats' spread is 0, which is no noise estimate; the
+    state's warning says so and the model's sigma is unknown (was 0, rho inf)."""
+    rng = np.random.default_rng(2)
+    acc = FiducialAccumulator(3, "tracker", "world", 0.001, 0.0)
+    grid = np.array([[x, y, z] for x in (0, .3, .6) for y in (0, .3) for z in (0, .2)], float)
+    for k, p in enumerate(grid):
+        w = p + rng.normal(0, 1e-4, 3)
+        for n in range(3):
+            acc.add(f"H{k:02d}", w, p + 1.0, stamp_s=1.0 + k + 0.1 * n)
+    state = build_state(acc.fiducial_set(), Settings.from_mapping({}), 1)
+    assert state.error == "" and state.model.sigma is None, state.model.sigma
+    assert "are identical to their first measurement" in state.warning, state.warning
