@@ -7,7 +7,7 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Callable, Iterable, NoReturn, Optional, Sequence
+from typing import Any, Callable, Iterable, NoReturn, Optional, Sequence
 
 from ..core.constants import DECISION_MODES, DIMENSIONS, INTERPOLATIONS, RESTORATIONS
 from ..io.escape import terminal
@@ -136,6 +136,37 @@ def warn_blunders(command: str, model: object, unit: str) -> None:
     line = describe_blunders(blunders(model), unit)
     if line:
         warn(command, line)
+
+
+def warn_model(command: str, model: Any, fiducials: Any, unit: str) -> None:
+    """The warnings of a model built from a fiducials file (``register``, ``plan``), one line
+    each: frames that do not match rigidly or an unconverged restoration
+    (:func:`~rbc_registration.core.scale.rigidity_warnings`), repeats that scatter or are all
+    identical (:mod:`rbc_registration.core.noise`), a fiducial whose held-out error stands out
+    (:func:`warn_blunders`), one point under two ids (:mod:`rbc_registration.core.repeats`),
+    and a cell too large or too small for ``unit``
+    (:func:`~rbc_registration.core.scale.implausible_size`).
+
+    :param fiducials: the :class:`~rbc_registration.io.csv_io.FiducialTable` read.
+    """
+    from ..core.noise import identical_repeats, scattered_repeats
+    from ..core.repeats import describe_twins, twin_groups
+    from ..core.scale import implausible_size, rigidity_warnings
+    from ..io.calibration_model import METRES_PER_UNIT
+
+    for line in filter(None, (*rigidity_warnings(model, unit),
+                              scattered_repeats(model.ids, model.repeat_stats, unit),
+                              identical_repeats(model.repeat_stats))):
+        warn(command, line)
+    warn_blunders(command, model, unit)
+    twins = describe_twins(fiducials.ids, fiducials.working,
+                           twin_groups(fiducials.working, fiducials.destination), unit)
+    if twins:
+        warn(command, twins)
+    if unit in METRES_PER_UNIT:
+        size = implausible_size(model.destination, METRES_PER_UNIT[unit], unit)
+        if size:
+            warn(command, size)
 
 
 def node_name(text: str) -> str:

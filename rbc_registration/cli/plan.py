@@ -14,7 +14,7 @@ from typing import Any
 
 from ..io.escape import terminal
 from .options import (add_model_options, non_negative, output_file, refuse_outputs_onto_inputs,
-                      warn)
+                      warn, warn_model)
 
 #: Suggestions made when ``--count`` is not given (fewer when there are fewer candidates).
 DEFAULT_COUNT = 5
@@ -108,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
     plan = plan_from_model(model, cand.working, tgt.working if tgt else None, count=count,
                            config=config, error_model=em)
     _warn_unit_mismatch(model.working, cand.working, tgt.working if tgt else None)
+    warn_model("plan", model, fid, args.unit)
     report = plan_report(plan, cand.ids, em, config, args.unit)
     print(format_plan(report))
     if args.json:

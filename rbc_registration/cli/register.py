@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 from ..io.escape import terminal
 from .options import (add_model_options, name_list, non_negative, output_file,
-                      refuse_outputs_onto_inputs, warn, warn_blunders, warn_unit_mismatch)
+                      refuse_outputs_onto_inputs, warn, warn_model, warn_unit_mismatch)
 
 if TYPE_CHECKING:   # imported when the subcommand runs (a fast --help)
     from ..core.model import ModelConfig
@@ -69,10 +69,6 @@ def run(args: argparse.Namespace) -> int:
     """Print the report, write JSON."""
     from ..core.evaluation import describe_misfits, gross_misfits, leave_one_out
     from ..core.model import build_model
-    from ..core.repeats import describe_twins, twin_groups
-    from ..core.noise import identical_repeats, scattered_repeats
-    from ..core.scale import implausible_size, rigidity_warnings
-    from ..io.calibration_model import METRES_PER_UNIT
     from ..io.csv_io import read_fiducials, read_targets
     from ..io.report import format_report, model_report, write_json
 
@@ -100,19 +96,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_report(report))
     warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report,
                        model.destination, tgt.destination if tgt else None)
-    for line in filter(None, (*rigidity_warnings(model, args.unit),
-                              scattered_repeats(model.ids, model.repeat_stats, args.unit),
-                              identical_repeats(model.repeat_stats))):
-        warn("register", line)
-    warn_blunders("register", model, args.unit)
-    twins = describe_twins(fid.ids, fid.working,
-                           twin_groups(fid.working, fid.destination), args.unit)
-    if twins:
-        warn("register", twins)
-    if args.unit in METRES_PER_UNIT:
-        size = implausible_size(model.destination, METRES_PER_UNIT[args.unit], args.unit)
-        if size:
-            warn("register", size)
+    warn_model("register", model, fid, args.unit)
     if args.json:
         write_json(report, args.json)
         print(f"wrote {terminal(args.json)}")

@@ -159,6 +159,25 @@ def test_candidates_in_another_unit_get_a_warning(tmp_path, ra):
     assert "warning" not in proc.stderr
 
 
+def test_plan_warns_of_its_model_as_register_does(tmp_path, ra):
+    """``plan`` built the model ``register`` warns about without a word: a cell 1000x too large
+    for its unit, a typo'd fiducial. It prints register's model warnings now (one function,
+    cli/options.warn_model)."""
+    d, cell, _, ids, holes = ra
+    fid = (d / "fiducials.csv").read_text().splitlines()
+    big = [fid[0]] + [",".join([r.split(",")[0]] + [repr(float(v) * 1e3) for v in
+                                                     r.split(",")[1:]]) for r in fid[1:]]
+    (tmp_path / "km.csv").write_text("\n".join(big) + "\n")
+    write_targets(tmp_path / "holes.csv", ids, holes * 1e3)
+    for command in ("plan", "register"):
+        args = [tmp_path / "km.csv"] + (["--candidates", tmp_path / "holes.csv", "--count", "1"]
+                                        if command == "plan" else [])
+        proc = run_cli(command, *args)
+        lines = [line for line in proc.stderr.splitlines() if "larger than any cell" in line]
+        assert len(lines) == 1 and lines[0].startswith(f"rbc-registration {command}: warning: "
+                                                       "the fiducials' RMS distance"), proc.stderr
+
+
 @pytest.mark.parametrize("args, message", [
     (["{fid}", "--candidates", "missing.csv"], "missing.csv: no such file"),
     (["{fid}", "--candidates", "{bad}"], "row 3: column wy is not a number"),
