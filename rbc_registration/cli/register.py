@@ -90,6 +90,12 @@ def run(args: argparse.Namespace) -> int:
                          f"a wrong hole? fix or remove its rows") from None
     tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,
                        fiducials=fid.working) if args.targets else None
+    if tgt is not None and tgt.destination is not None:
+        from ..pipeline.offline import truth_note
+
+        note = truth_note(tgt.ids, tgt.destination)      # some rows without truth
+        if note:
+            warn("register", f"{args.targets}: {note}")
     loo = leave_one_out(model) if args.loo else None
     report = model_report(model, tgt.ids if tgt else (), tgt.working if tgt else None,
                           tgt.destination if tgt else None, loo, args.unit)

@@ -442,22 +442,43 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
         tids.append(tid)
         work.append([_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes])
         if has_truth:
-            truth.append([_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes])
-    first = [index[0] for index in rows_by_id(tids).values()]
-    named = [("working", work)] + ([("truth", truth)] if has_truth else [])
+            truth.append(_truth(path, line, row, axes))
+    lines = [line for line, _ in rows]
+    known = [k for k, t in enumerate(truth) if not math.isnan(t[0])]   # rows with truth
+    named = [("working", list(range(len(tids))), work)] + (
+        [("truth", known, truth)] if known else [])
     fallback = typical_spacing(fiducials) if fiducials is not None else 0.0
-    limits = _repeat_limits([[points[k] for k in first] for _, points in named],
-                            outlier_distance, kind, fallback)
-    conflict = first_conflict(tids, [(frame, points, *limit)
-                                     for (frame, points), limit in zip(named, limits)], kind)
-    if conflict is not None:
-        lines = [line for line, _ in rows]
-        raise CsvError(f"{path}: id {tids[conflict.row]!r} (first at row "
-                       f"{lines[conflict.first]}) has conflicting {conflict.frame} points: row "
-                       f"{lines[conflict.row]}: {conflict.message}")
-    ids, means = mean_by_id(tids, work, *([truth] if has_truth else []))
+    for frame, index, points in named:
+        sub = [tids[k] for k in index]
+        first = [rows_k[0] for rows_k in rows_by_id(sub).values()]
+        limit = _repeat_limits([[points[index[k]] for k in first]], outlier_distance, kind,
+                               fallback)[0]
+        conflict = first_conflict(sub, [(frame, [points[k] for k in index], *limit)], kind)
+        if conflict is not None:
+            row, first_row = index[conflict.row], index[conflict.first]
+            raise CsvError(f"{path}: id {tids[row]!r} (first at row {lines[first_row]}) has "
+                           f"conflicting {frame} points: row {lines[row]}: {conflict.message}")
+    ids, (means,) = mean_by_id(tids, work)
     counts = tuple(len(index) for index in rows_by_id(tids).values())
-    return TargetTable(ids, means[0], means[1] if has_truth else None, counts)
+    if not known:
+        return TargetTable(ids, means, None, counts)
+    # an id's truth: the mean of its rows with truth (NaN: none has; a target without truth)
+    with_ids, (truth_means,) = mean_by_id([tids[k] for k in known], [truth[k] for k in known])
+    destination = np.full_like(means, np.nan)
+    position = {t: k for k, t in enumerate(ids)}
+    destination[[position[t] for t in with_ids]] = truth_means
+    return TargetTable(ids, means, destination, counts)
+
+
+def _truth(path: PathLike, line: int, row: dict[str, str], axes: str) -> list[float]:
+    """A row's truth: every ``d`` column a number, or all empty (NaN: no truth for this row)."""
+    empty = [f"d{a}" for a in axes if not row.get(f"d{a}")]
+    if len(empty) == len(axes):
+        return [math.nan] * len(axes)
+    if empty:
+        raise CsvError(f"{path}: row {line}: truth column(s) {', '.join(empty)} empty: give "
+                       f"all of {', '.join(f'd{a}' for a in axes)} or none (no truth)")
+    return [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes]
 
 
 def write_fiducials(path: PathLike, ids, working_repeats, destination_repeats) -> None:

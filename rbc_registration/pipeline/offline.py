@@ -13,6 +13,7 @@ import math
 from typing import Any, Mapping, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..core.accumulator import FiducialAccumulator, FiducialSet
 from ..core.constants import WORKING
@@ -185,17 +186,19 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
     return Targets(unique, working, truth, "bag")
 
 
-def truth_note(targets: Targets) -> str:
-    """The note on targets without truth ("" when every target has truth)."""
-    if targets.destination is None:
+def truth_note(ids: Sequence[str], destination: Optional[NDArray[np.float64]]) -> str:
+    """The note on targets without truth ("" when every target has truth).
+
+    :param ids: the targets' ids; :param destination: their truth (K, d), a row of NaN for a
+        target without; ``None``: none has.
+    """
+    if destination is None:
         return "targets have no truth: TRE not computed"
-    blind = [t for t, has in zip(targets.ids, with_truth(targets.destination,
-                                                         len(targets.ids))) if not has]
+    blind = [t for t, has in zip(ids, with_truth(destination, len(ids))) if not has]
     if not blind:
         return ""
-    return (f"{len(blind)} of {len(targets.ids)} targets have no truth (a NaN destination "
-            f"point), e.g. {blind[0]!r}: their TRE is not computed, the TRE summary is over the "
-            f"other {len(targets.ids) - len(blind)}")
+    return (f"{len(blind)} of {len(ids)} targets have no truth, e.g. {blind[0]!r}: their TRE "
+            f"is not computed, the TRE summary is over the other {len(ids) - len(blind)}")
 
 
 def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
@@ -223,7 +226,8 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
                                  f"{acc.log_lines[0]})" if acc.log_lines else ""))
     if targets is None:
         targets = recorded_targets(recorded, settings, source)
-    notes = (truth_note(targets),) if targets is not None and truth_note(targets) else ()
+    note = truth_note(targets.ids, targets.destination) if targets is not None else ""
+    notes = (note,) if note else ()
     notes += acc.stamp_warnings
     return OfflineModel(state.model, state.fiducials, settings, targets, acc.rejected, notes,
                         state.warning, tuple(acc.first_rejections.items()))

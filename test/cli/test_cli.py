@@ -185,3 +185,27 @@ def test_the_target_table_names_whose_correction_it_shows(interpolation):
     assert f"|eps| ({interpolation})" in head, head
     eps = np.linalg.norm(model.correct(cell.target_means[:1]).correction[0])
     assert f"{eps:.4g}" in text
+
+
+def test_register_reports_targets_without_truth_beside_targets_with_it(tmp_path):
+    """A targets file with some rows' truth left empty: TRE for the others, null for those,
+    one warning line naming the count."""
+    cell = make_cell("A", seed=0)
+    write_fiducials(tmp_path / "f.csv", cell.fiducial_ids, cell.fiducial_measurements,
+                    cell.fiducial_truth)
+    rows = ["id,wx,wy,wz,dx,dy,dz"] + [
+        f"{tid},{','.join(map(repr, map(float, w)))},"
+        + (",," if k % 4 == 1 else ",".join(map(repr, map(float, d))))
+        for k, (tid, w, d) in enumerate(zip(cell.target_ids, cell.target_means,
+                                            cell.target_truth))]
+    (tmp_path / "t.csv").write_text("\n".join(rows) + "\n")
+    proc = run("register", tmp_path / "f.csv", "--targets", tmp_path / "t.csv", "--json",
+               tmp_path / "r.json")
+    blind = sum(1 for k in range(len(cell.target_ids)) if k % 4 == 1)
+    assert (f"{blind} of {len(cell.target_ids)} targets have no truth, e.g. "
+            f"'{cell.target_ids[1]}'") in proc.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    missing = [t["id"] for t in report["targets"] if t["tre_u"] is None]
+    assert missing == [cell.target_ids[k] for k in range(len(cell.target_ids)) if k % 4 == 1]
+    kept = [t["tre_u"] for t in report["targets"] if t["tre_u"] is not None]
+    assert report["summary"]["tre_u_median"] == pytest.approx(float(np.median(kept)))

@@ -398,3 +398,26 @@ def test_a_plate_read_in_2d_whose_z_differs_between_frames_is_named(tmp_path, wo
     if warned:
         assert "xy planes are not parallel" in lines[0] and "\n" not in lines[0]
     assert read_fiducials(_plate_file(tmp_path, working, destination), dim=3).notes == ()
+
+
+def test_a_targets_row_without_truth_beside_rows_with_it(tmp_path):
+    """A target whose d columns are all empty has no truth (NaN row), beside targets with it
+    (was: 'column dx is empty', the file refused); an id's truth is the mean of its rows with
+    truth; a row with some d columns empty is refused in one line."""
+    text = ("id,wx,wy,wz,dx,dy,dz\na,0,0,0,10,0,0\nb,100,0,0,,,\nc,0,100,0,10,100,0\n"
+            "c,0.01,100,0,,,\nd,0,0,100,,,\n")
+    t = read_targets(write(tmp_path, text), 3)
+    assert t.ids == ("a", "b", "c", "d") and t.counts == (1, 1, 2, 1)
+    np.testing.assert_allclose(t.destination[[0, 2]], [[10, 0, 0], [10, 100, 0]])
+    assert np.isnan(t.destination[[1, 3]]).all()
+    np.testing.assert_allclose(t.working[2], [0.005, 100, 0])
+    with pytest.raises(CsvError, match=r"row 3: truth column\(s\) dy, dz empty: give all of "
+                                       r"dx, dy, dz or none \(no truth\)$"):
+        read_targets(write(tmp_path, "id,wx,wy,wz,dx,dy,dz\na,0,0,0,1,2,3\nb,1,0,0,5,,\n"), 3)
+    # no row with truth: no truth at all, as without the columns
+    none = read_targets(write(tmp_path, "id,wx,wy,wz,dx,dy,dz\na,0,0,0,,,\nb,1,0,0,,,\n"), 3)
+    assert none.destination is None
+    # the truth of rows with truth still must agree within an id
+    with pytest.raises(CsvError, match="conflicting truth points"):
+        read_targets(write(tmp_path, "id,wx,wy,wz,dx,dy,dz\na,0,0,0,0,0,0\nb,100,0,0,100,0,0\n"
+                           "c,0,100,0,,,\na,0,0,0,60,0,0\n"), 3)
