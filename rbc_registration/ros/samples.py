@@ -67,13 +67,16 @@ class SampleTaker:
     def update(self, stream: str, msg: PointStamped) -> None:
         """Remember ``msg`` as the latest point of ``stream`` (``working`` / ``destination``).
         A copy of the latest point (the same coordinates, frame and stamp: a topic bridged or
-        recorded twice, which the pairer drops as a duplicate) is the same measurement: it keeps
-        the latest point's marks (paired, sampled) and its time of arrival."""
+        recorded twice, which the pairer drops as a duplicate; a driver re-sending its last
+        measurement) is the same measurement: it keeps the latest point's marks (paired,
+        sampled); its time of arrival is the copy's, as before."""
         with self._lock:
+            now = self._node.get_clock().now().nanoseconds
             old = self._latest.get(stream)
             if old is not None and _same_point(old.msg, msg):
+                self._latest[stream] = old._replace(msg=msg, received_ns=now)
                 return
-            self._latest[stream] = Latest(msg, self._node.get_clock().now().nanoseconds)
+            self._latest[stream] = Latest(msg, now)
 
     def mark_paired(self, pairs: Sequence[Any]) -> None:
         """Stamp pairs (``core.pairing.PointPair``) were recorded: a latest point that is one of
