@@ -19,6 +19,7 @@ from ..core.accumulator import FiducialAccumulator, FiducialSet
 from ..core.constants import WORKING
 from ..core.model import RbcModel
 from ..core.pairing import StampPairer
+from ..core.scale import dropped_z_warning
 from ..core.records import RejectedMeasurement, quote
 from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
@@ -229,5 +230,26 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
     note = truth_note(targets.ids, targets.destination) if targets is not None else ""
     notes = (note,) if note else ()
     notes += acc.stamp_warnings
+    warning = "; ".join(filter(None, (state.warning, dropped_z(inputs, settings))))
     return OfflineModel(state.model, state.fiducials, settings, targets, acc.rejected, notes,
-                        state.warning, tuple(acc.first_rejections.items()))
+                        warning, tuple(acc.first_rejections.items()))
+
+
+def dropped_z(inputs: Sequence[Input], settings: Settings) -> str:
+    """In 2D, the warning for recorded ``FiducialPair`` measurements (with ids, in the node's
+    frames; each id's first) whose z, which 2D drops, differ between the frames beyond a
+    constant (:func:`~rbc_registration.core.scale.dropped_z_warning`), or ""."""
+    if settings.dimension != 2:
+        return ""
+    first: dict[str, PairMessage] = {}
+    for m in inputs:
+        if (isinstance(m, PairMessage) and m.fiducial_id and not m.stamp_error
+                and (m.working_frame or settings.working_frame) == settings.working_frame
+                and (m.destination_frame or settings.destination_frame)
+                == settings.destination_frame):
+            first.setdefault(m.fiducial_id, m)
+    if not first:
+        return ""
+    pairs = list(first.values())
+    return dropped_z_warning([m.working[2] for m in pairs], [m.destination[2] for m in pairs],
+                             [m.destination[:2] for m in pairs], "m") or ""
