@@ -31,11 +31,13 @@ later is already made; that candidate is refused (and says so). Stamps that repe
 stream's previous stamp again) are not checked: pairing then goes by arrival order
 (:attr:`PairingResult.repeated`).
 
-*Duplicates*: a point equal to one of its stream seen before (the same coordinates, frame and
-stamp: a topic recorded twice, a point republished; among the stream's last
+*Duplicates*: a stamped point equal to one of its stream seen before (the same coordinates,
+frame and stamp: a topic recorded twice, a point republished; among the stream's last
 :data:`COPY_MEMORY` distinct points) is dropped as a duplicate before any of this, so its copy
 makes no point ambiguous (a bag with both point topics recorded twice lost
-every measurement to ``ambiguous``).
+every measurement to ``ambiguous``). Unstamped points (stamp 0) cannot be told from a repeat
+of the same hole (a robot's destination point is the same, bit for bit, every time) and are
+never duplicates, as for measurements (:mod:`.accumulator`).
 """
 
 from __future__ import annotations
@@ -230,8 +232,11 @@ class StampPairer:
         return PairingResult(pairs, tuple(dropped), repeated)
 
     def _is_copy(self, stream: str, point: StampedPoint) -> bool:
-        """Whether ``point`` equals (coordinates, frame and stamp) one of the last
-        :data:`COPY_MEMORY` distinct points of ``stream``; if not, it is remembered."""
+        """Whether ``point`` is stamped and equals (coordinates, frame and stamp) one of the last
+        :data:`COPY_MEMORY` distinct points of ``stream``; if not, it is remembered. An unstamped
+        point (stamp 0) is never a copy (module docstring)."""
+        if point.stamp_s == 0.0:
+            return False
         known = self._recent_set[stream]
         if point in known:
             return True

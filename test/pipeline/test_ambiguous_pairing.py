@@ -95,3 +95,31 @@ def test_a_pair_made_again_is_a_duplicate_and_reported_as_recorded():
     assert ingest.point("destination", d, "world", 5.0, recorded=recorded) == []
     assert len(recorded) == 1
     assert acc.rejected["duplicate"] == 2 and acc.n_measurements == 1
+
+
+@pytest.mark.parametrize("grouped", [False, True])
+def test_unstamped_points_of_repeats_are_measurements_not_copies(grouped):
+    """A review of the copy rule: drivers that leave header.stamp at 0 pair by arrival order,
+    and a robot's destination point of a repeat of the same hole is the same, bit for bit. Every
+    repeat's destination point was dropped as a 'duplicate' (250 of 375 in cell A with 3
+    repeats), and with each hole measured 3 times back to back the waiting working point took the
+    next hole's destination point (FRE 1.6 m). Unstamped points are never copies, as unstamped
+    measurements are never duplicates: every repeat is a measurement of its own hole."""
+    cell = make_cell("A", seed=0, repeats=3)
+    messages = [m._replace(stamp_ns=0) for m in cell_messages(cell, points=True)
+                if m.topic.endswith("_point")]
+    if grouped:         # each hole 3 times, then the next (pairs of working, destination)
+        pairs = [messages[i:i + 2] for i in range(0, len(messages), 2)]
+        order = {}
+        for p in pairs:
+            order.setdefault(p[1].xyz, len(order))
+        messages = [m for p in sorted(pairs, key=lambda p: order[p[1].xyz]) for m in p]
+    ingest, acc, _ = ingest_points(messages, StampPairer(0.02))
+    fs = ingest.fiducial_set()
+    assert fs.n_measurements == len(messages) // 2 == 375 and acc.n_rejected == 0
+    assert len(fs.ids) == 125 and set(fs.repeat_stats.counts) == {3}
+    # every fiducial's working mean is the mean of its own hole's measurements
+    truth = np.asarray(cell.fiducial_truth) / 1000.0
+    near = np.linalg.norm(fs.destination[:, None, :] - truth[None], axis=2).argmin(axis=1)
+    means = np.array([m.mean(axis=0) for m in cell.fiducial_measurements]) / 1000.0
+    assert np.allclose(fs.working, means[near], rtol=0, atol=1e-12)
