@@ -257,29 +257,33 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
         dest.append(np.array(t))
     notes += _ignored_rows_notes(path, ignored, len(parsed) - len(copied), limits[0])
     if d == 2 and ("wz" in header or "dz" in header):
-        tilted = _dropped_z_note(rows, groups, dest)
+        tilted = _dropped_z_note(rows, groups)
         if tilted:
             notes.append(f"{path}: {tilted}")
     return FiducialTable(tuple(groups), tuple(work), tuple(dest), d, tuple(notes))
 
 
-def _dropped_z_note(rows: list, groups: dict, dest: list) -> Optional[str]:
+def _dropped_z_note(rows: list, groups: dict) -> Optional[str]:
     """:func:`~rbc_registration.core.scale.dropped_z_warning` of a file read in 2D that has z
-    columns: each id's first row's z (0 where a frame has no z column, NaN where not a number)."""
+    columns, on each id's first row (z 0 where a frame has no z column, NaN where not a
+    number: that row is not looked at)."""
     from ..core.scale import dropped_z_warning
 
     first = {line: row for line, row in rows}
-    z = {"wz": [], "dz": []}
+    points: dict[str, list] = {"w": [], "d": []}
     for group in groups.values():
         row = first[group[0][0]]
-        for column, values in z.items():
-            text = (row.get(column) or "").strip() if column in row else "0"
-            try:
-                values.append(float(text))
-            except ValueError:
-                values.append(math.nan)
-    xy = np.array([t[0] for t in dest], dtype=float)
-    return dropped_z_warning(z["wz"], z["dz"], xy, "")
+        for frame, values in points.items():
+            xyz = []
+            for axis in "xyz":
+                column = frame + axis
+                text = (row.get(column) or "").strip() if column in row else "0"
+                try:
+                    xyz.append(float(text))
+                except ValueError:
+                    xyz.append(math.nan)
+            values.append(xyz)
+    return dropped_z_warning(points["w"], points["d"], "")
 
 
 #: Ignored working-frame repeats named one line each; beyond that, one summary line.

@@ -14,6 +14,7 @@ from typing import Any, Callable, Mapping, NamedTuple, Optional, Sequence
 from ..core.accumulator import (FiducialAccumulator, FiducialSet, Measurement, Record,
                                 RejectedMeasurement)
 from ..core.pairing import PointPair, StampPairer
+from ..core.scale import dropped_z_warning
 from .journal import Journal
 from .residuals import FiducialSummary
 from .settings import Settings
@@ -96,6 +97,9 @@ class Ingest:
         self.journal_error = ""      # the last journal write error; "" once a write succeeds
         self.n_journal_failures = 0  # records refused because the journal could not be written
         self.n_replay_skipped = 0    # journal lines skipped on replay (corrupt or invalid)
+        # In 2D: the 3D points of each fiducial's first measurement accepted by this process
+        # (the accumulator and the journal keep x, y only), for dropped_z_warning.
+        self._first_xyz: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}
 
     def restore(self) -> int:
         """Replay the journal (if any) into the accumulator; return the measurements restored.
@@ -155,6 +159,10 @@ class Ingest:
         if not self._accept(record):
             return _Outcome(None, JOURNAL_FAILED,
                             f"journal write failed, not accepted: {self.journal_error}")
+        if (self._acc.dimension == 2 and record.fiducial_id not in self._first_xyz
+                and len(args.working_xyz) == 3 and len(args.destination_xyz) == 3):
+            self._first_xyz[record.fiducial_id] = (tuple(map(float, args.working_xyz)),
+                                                   tuple(map(float, args.destination_xyz)))
         return _Outcome(record)
 
     def reject(self, exc: RejectedMeasurement) -> None:
@@ -246,6 +254,7 @@ class Ingest:
                                    f"failed: {exc}")
             self._acc.clear()
             self._pairer.clear()
+            self._first_xyz.clear()
             self.first_rejections.clear()
             self.n_journal_failures = 0
             self.journal_error = ""
@@ -266,6 +275,17 @@ class Ingest:
         """The enabled fiducials now (for a model rebuild)."""
         with self._lock:
             return self._acc.fiducial_set()
+
+    def dropped_z_warning(self) -> str:
+        """In 2D, :func:`~rbc_registration.core.scale.dropped_z_warning` (lengths in metres) of
+        the enabled fiducials' first measurements accepted since this process started (or the
+        last reset): the journal keeps x, y only, so measurements restored from it are not
+        looked at. "" when there is nothing to say."""
+        with self._lock:
+            first = [xyz for fid, xyz in self._first_xyz.items() if self._acc.is_enabled(fid)]
+        if self._acc.dimension != 2 or not first:
+            return ""
+        return dropped_z_warning([w for w, _ in first], [d for _, d in first], "m") or ""
 
     def disabled_points(self) -> dict[str, tuple[float, ...]]:
         """The mean destination-frame point of each disabled fiducial (for ``~/markers``)."""

@@ -19,12 +19,11 @@ from ..core.accumulator import FiducialAccumulator, FiducialSet
 from ..core.constants import WORKING
 from ..core.model import RbcModel
 from ..core.pairing import StampPairer
-from ..core.scale import dropped_z_warning
 from ..core.records import RejectedMeasurement, quote
 from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
 from .settings import SPECS, Settings
-from .state import build_state
+from .state import build_state, with_warning
 from .targets import Targets, first_conflict, mean_by_id, with_truth
 
 Input = Union[PairMessage, PointMessage]
@@ -36,13 +35,16 @@ class EvaluationError(ValueError):
 
 class Accumulated(NamedTuple):
     """The fiducials after ingestion, rejections by reason, the log lines of the rejections,
-    the warnings about point stamps that repeat and the first rejection's message by reason."""
+    the warnings about point stamps that repeat, the first rejection's message by reason, and in
+    2D the warning for z that differ between the frames (:meth:`.ingest.Ingest.
+    dropped_z_warning`, "" when none)."""
 
     fiducials: FiducialSet
     rejected: dict[str, int]
     log_lines: tuple[str, ...]
     stamp_warnings: tuple[str, ...]
     first_rejections: dict[str, str]
+    dropped_z: str = ""
 
 
 class OfflineModel(NamedTuple):
@@ -133,7 +135,8 @@ def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
         else:
             ingest.point(m.stream, m.xyz, m.frame_id, m.stamp_s)
     return Accumulated(ingest.fiducial_set(), dict(acc.rejected), tuple(log.lines),
-                       tuple(ingest.stamp_warnings.values()), dict(ingest.first_rejections))
+                       tuple(ingest.stamp_warnings.values()), dict(ingest.first_rejections),
+                       ingest.dropped_z_warning())
 
 
 def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
@@ -230,26 +233,7 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
     note = truth_note(targets.ids, targets.destination) if targets is not None else ""
     notes = (note,) if note else ()
     notes += acc.stamp_warnings
-    warning = "; ".join(filter(None, (state.warning, dropped_z(inputs, settings))))
+    state = with_warning(state, acc.dropped_z)
     return OfflineModel(state.model, state.fiducials, settings, targets, acc.rejected, notes,
-                        warning, tuple(acc.first_rejections.items()))
+                        state.warning, tuple(acc.first_rejections.items()))
 
-
-def dropped_z(inputs: Sequence[Input], settings: Settings) -> str:
-    """In 2D, the warning for recorded ``FiducialPair`` measurements (with ids, in the node's
-    frames; each id's first) whose z, which 2D drops, differ between the frames beyond a
-    constant (:func:`~rbc_registration.core.scale.dropped_z_warning`), or ""."""
-    if settings.dimension != 2:
-        return ""
-    first: dict[str, PairMessage] = {}
-    for m in inputs:
-        if (isinstance(m, PairMessage) and m.fiducial_id and not m.stamp_error
-                and (m.working_frame or settings.working_frame) == settings.working_frame
-                and (m.destination_frame or settings.destination_frame)
-                == settings.destination_frame):
-            first.setdefault(m.fiducial_id, m)
-    if not first:
-        return ""
-    pairs = list(first.values())
-    return dropped_z_warning([m.working[2] for m in pairs], [m.destination[2] for m in pairs],
-                             [m.destination[:2] for m in pairs], "m") or ""

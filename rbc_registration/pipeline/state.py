@@ -4,7 +4,7 @@ atomically, built from the enabled fiducials and the settings. No rclpy.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
@@ -119,6 +119,15 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
                                       identical_repeats(model.repeat_stats),
                                       describe_blunders(blunders(model), "m"), twins)))
     return ModelState(model, fiducials, settings, "", stamp_ns, warning)
+
+
+def with_warning(state: ModelState, line: str) -> ModelState:
+    """``state`` with ``line`` added to its :attr:`~ModelState.warning` (joined by "; "); the
+    same state when ``line`` is empty or no model is served. For what only the ingestion knows,
+    e.g. :meth:`.ingest.Ingest.dropped_z_warning`."""
+    if not line or state.model is None:
+        return state
+    return replace(state, warning="; ".join(filter(None, (state.warning, line))))
 
 
 def _build(fiducials: FiducialSet, settings: Settings,

@@ -41,7 +41,7 @@ from ..pipeline.journal import Journal
 from ..pipeline.snapshot import start_warnings, write_atomic
 from ..pipeline.build_process import BuildCancelled, ProcessBuilder
 from ..pipeline.state import (BUILDING_STATE, EMPTY_STATE, ModelState, first_build_failed,
-                               warm_start)
+                               warm_start, with_warning)
 from ..pipeline.worker import LatestWriter, RecomputeWorker
 from ..runtime import freeze_startup_objects
 from . import conversions as conv
@@ -265,6 +265,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         # kriging_warm_start: the served model's kriging hyper-parameters start the next fit.
         state = self._build(fiducials, settings, self.get_clock().now().nanoseconds,
                             warm_start(self._state) if settings.kriging_warm_start else None)
+        state = with_warning(state, self._ingest.dropped_z_warning())
         previous = self._serve_model(state, disabled_points, generation)
         if previous is None:
             return              # ~/reset came meanwhile

@@ -592,12 +592,17 @@ def test_a_bag_whose_messages_are_mostly_rejected_says_why(tmp_path, capsys):
     assert line in capsys.readouterr().err
 
 
-def test_a_3d_bag_read_in_2d_names_the_dropped_z(tmp_path, capsys):
-    """``--dim 2`` on a bag whose z differ between the frames beyond a constant: the same
-    warning as a CSV file read in 2D (core/scale.dropped_z_warning); a 2D bag (z = 0) none."""
-    write_bag(tmp_path / "a", cell_messages(make_cell("A", seed=0)), progress=False)
-    write_bag(tmp_path / "ra", cell_messages(make_cell("RA", seed=0)), progress=False)
+@pytest.mark.parametrize("points", [False, True])
+def test_a_3d_bag_read_in_2d_names_the_dropped_z(tmp_path, capsys, points):
+    """``--dim 2`` on a bag whose frames' xy planes are not parallel: the same warning as a CSV
+    file read in 2D (core/scale.dropped_z_warning, through the node's ingestion, so for
+    FiducialPair and point topics alike: the point topics had none); a 2D bag (z = 0) none."""
+    write_bag(tmp_path / "a", cell_messages(make_cell("A", seed=0), points=points),
+              progress=False)
+    write_bag(tmp_path / "ra", cell_messages(make_cell("RA", seed=0), points=points),
+              progress=False)
     assert cli.main(["evaluate", str(tmp_path / "a"), "--quiet", "--dim", "2"]) == 0
-    assert capsys.readouterr().err.count("read in 2D, the fiducials' z (ignored) differ") == 1
+    assert capsys.readouterr().err.count("read in 2D, dropping the fiducials' z changes their "
+                                         "distances by ") == 1
     assert cli.main(["evaluate", str(tmp_path / "ra"), "--quiet"]) == 0
     assert "read in 2D" not in capsys.readouterr().err
