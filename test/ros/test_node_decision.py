@@ -286,4 +286,5 @@ class TestDroppedZ(NodeTestBase):
                     in state.warning) == named, state.warning
             if named:
                 assert "m RMS between the frames" in state.warning
-                wait_for(lambda: "read in 2D" in node.status().message, what="status message")
+                wait_for(lambda n=node: "read in 2D" in n.status().message,
+                         what="status message")
