@@ -156,7 +156,7 @@ def warn_model(command: str, model: Any, fiducials: Any, unit: str) -> None:
 
     for line in filter(None, (*rigidity_warnings(model, unit),
                               scattered_repeats(model.ids, model.repeat_stats, unit),
-                              identical_repeats(model.repeat_stats))):
+                              identical_repeats(model.repeat_stats, model.sigma_source))):
         warn(command, line)
     warn_blunders(command, model, unit)
     twins = describe_twins(fiducials.ids, fiducials.working,

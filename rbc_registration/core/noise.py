@@ -24,7 +24,7 @@ from typing import NamedTuple, Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import check_rho_thresholds
+from .constants import SIGMA_SOURCES, check_rho_thresholds
 from .validation import as_points
 
 
@@ -95,13 +95,34 @@ def resolve_repeat_stats(count: int, dim: int, working_repeats: Optional[Sequenc
     return stats, sigma_from_stats(stats)
 
 
+#: When at least this share of the fiducials measured more than once have repeats identical to
+#: their first measurement (a spread of exactly 0), those repeats are copies (or coordinates
+#: rounded coarser than the noise), not noise: sigma leaves them out (:func:`copied_repeats`).
+#: By chance (rounding finer than the noise) a few fiducials' repeats coincide, not half.
+COPIED_SHARE = 0.5
+
+
+def copied_repeats(stats: RepeatStats) -> NDArray[np.bool_]:
+    """Mask of the fiducials whose repeats are identical copies of their first measurement, when
+    at least :data:`COPIED_SHARE` of the fiducials measured more than once are (all False
+    otherwise: a few coincidences of rounded coordinates are noise)."""
+    measured = stats.counts >= 2
+    same = measured & (stats.variances == 0)
+    if not same.any() or same.sum() < COPIED_SHARE * measured.sum():
+        return np.zeros(len(stats.counts), dtype=bool)
+    return same
+
+
 def sigma_from_stats(stats: RepeatStats) -> Optional[float]:
-    """sigma (see :func:`estimate_sigma`) from per-fiducial statistics; None without repeats."""
+    """sigma (see :func:`estimate_sigma`) from per-fiducial statistics, the fiducials whose
+    repeats are copies (:func:`copied_repeats`) left out; None without repeats (or when every
+    fiducial's repeats are copies: no noise estimate)."""
     measured = stats.variances[stats.counts >= 2]
-    if measured.size == 0:
-        return None
     if not np.all(np.isfinite(measured)) or (measured < 0).any():
         raise ValueError("repeat variances must be finite and >= 0")
+    measured = stats.variances[(stats.counts >= 2) & ~copied_repeats(stats)]
+    if measured.size == 0:
+        return None
     return math.sqrt(float(np.mean(measured)))
 
 
@@ -144,18 +165,31 @@ def scattered_repeats(ids: Sequence[str], stats: RepeatStats, unit: str) -> Opti
             f"it: remove the bad measurement, or set the outlier distance below its offset")
 
 
-def identical_repeats(stats: RepeatStats) -> Optional[str]:
-    """The warning when every fiducial measured more than once has identical repeats (a
-    spread of exactly 0): no noise estimate but a copied measurement or coordinates rounded
-    coarser than the noise, so :func:`~.model.build_model` takes sigma as unknown (a sigma of 0
-    is refused when given); ``None`` otherwise (or without repeats)."""
-    measured = stats.variances[stats.counts >= 2]
-    if measured.size == 0 or np.any(measured != 0):
+def identical_repeats(stats: RepeatStats, sigma_source: str = SIGMA_SOURCES[1]) -> Optional[str]:
+    """The warning when the repeats of fiducials are copies (:func:`copied_repeats`: identical
+    to their first measurement, for at least :data:`COPIED_SHARE` of the fiducials measured more
+    than once): a copied measurement or coordinates rounded coarser than the noise, so sigma
+    leaves them out, and with every fiducial's copies :func:`~.model.build_model` takes sigma as
+    unknown (a sigma of 0 is refused when given); ``None`` otherwise (or without repeats).
+
+    :param sigma_source: the model's (:data:`~.constants.SIGMA_SOURCES`): when sigma was given
+        the text says it is used, not that it is unknown.
+    """
+    sigma_given = sigma_source == SIGMA_SOURCES[0]
+    copied = int(copied_repeats(stats).sum())
+    if not copied:
         return None
-    return (f"the repeats of all {measured.size} fiducial(s) measured more than once are "
-            "identical to their first measurement: no noise estimate (one measurement copied, "
-            "or coordinates rounded coarser than the noise?), sigma is taken as unknown; give "
-            "the noise as sigma")
+    measured = int((stats.counts >= 2).sum())
+    cause = "one measurement copied, or coordinates rounded coarser than the noise?"
+    if copied == measured:
+        head = (f"the repeats of all {measured} fiducial(s) measured more than once are "
+                f"identical to their first measurement: no noise estimate ({cause})")
+        return head + ("; the given sigma is used" if sigma_given
+                       else ", sigma is taken as unknown; give the noise as sigma")
+    return (f"the repeats of {copied} of the {measured} fiducials measured more than once are "
+            f"identical to their first measurement ({cause}): sigma "
+            + ("is given; these repeats still count as measurements" if sigma_given else
+               f"is estimated from the other {measured - copied} alone"))
 
 
 def estimate_sigma(repeats: Sequence[ArrayLike]) -> Optional[float]:

@@ -116,7 +116,7 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
                            twin_groups(model.working, model.destination), "m")
     warning = "; ".join(filter(None, (left_out, *rigidity_warnings(model, "m"),
                                       scattered_repeats(model.ids, model.repeat_stats, "m"),
-                                      identical_repeats(model.repeat_stats),
+                                      identical_repeats(model.repeat_stats, model.sigma_source),
                                       describe_blunders(blunders(model), "m"), twins)))
     return ModelState(model, fiducials, settings, "", stamp_ns, warning)
 
