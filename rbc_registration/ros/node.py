@@ -305,11 +305,11 @@ def start_failure(exc: BaseException) -> str:
 
 
 def startup_logger_name(args: Optional[list[str]] = None) -> str:
-    """The logger name of the node as the command line remaps it (``-r __node:=NAME``,
-    ``-r __ns:=/ns``, also as ``registration_node:__node:=NAME``; the last rule wins), for the
-    lines logged before the node exists or after it failed: with several nodes in a launch,
-    the FATAL line names the one that could not start. rclpy's node loggers join the
-    namespace and name with dots."""
+    """The logger name of the node as the command line remaps it (``-r __node:=NAME`` or
+    ``__name:=NAME``, ``-r __ns:=/ns``, also as ``registration_node:__node:=NAME``; the last
+    rule wins), for the lines logged before the node exists or after it failed: with several
+    nodes in a launch, the FATAL line names the one that could not start. rclpy's node loggers
+    join the namespace and name with dots."""
     argv = sys.argv if args is None else args
     name, namespace = NODE_NAME, ""
     for flag, rule in zip(argv, argv[1:]):
@@ -319,7 +319,7 @@ def startup_logger_name(args: Optional[list[str]] = None) -> str:
         node, _, key = target.rpartition(":")
         if not sep or (node and node != NODE_NAME) or not value:
             continue
-        if key == "__node":
+        if key in ("__node", "__name"):     # rcl takes both spellings
             name = value
         elif key == "__ns":
             namespace = value

@@ -266,6 +266,8 @@ class TestRecomputeDoesNotBlock(RosTestBase):
     (["--ros-args", "-r", "registration_node:__node:=mine", "-r", "other:__node:=theirs"],
      "mine"),
     (["--ros-args", "-r", "__node:=a", "-r", "__node:=b"], "b"),
+    (["--ros-args", "-r", "__name:=cell_b"], "cell_b"),       # rcl's other spelling (review)
+    (["--ros-args", "-r", "__node:=a", "-r", "__name:=c"], "c"),
     (["--ros-args", "-r", "/chatter:=/talk", "-p", "__node:=x"], "registration_node"),
 ])
 def test_start_up_lines_name_the_node_as_remapped(argv, name):
