@@ -5,6 +5,7 @@ frame in another unit, or mirrored)."""
 
 from __future__ import annotations
 
+import math
 from typing import Any, Optional, Sequence
 
 import numpy as np
@@ -169,31 +170,47 @@ def implausible_metres(points: ArrayLike) -> Optional[str]:
             f"outlier_distance, merge_radius are metres)")
 
 
-#: Read in 2D, dropping z changes the fiducials' pairwise distance mismatch (eq. 1) by at least
-#: this fraction of the mismatch as read (sigma_L0, eq. 7, of the xy points) ...
-TILT_SHARE = 0.25
+#: Read in 2D, the fiducials' xy points named as distorted when their mismatch (sigma_L0,
+#: eq. 7) exceeds that of the same points in 3D by at least this fraction of it, in quadrature
+#: (the xy points 9 % less rigid than the 3D ones) ...
+TILT_SHARE = 0.4
 #: ... and by at least this fraction of the cell's xy RMS radius (10 ppm: below the length
-#: accuracy of large-volume instruments; a plate tilted 0.3 degrees in one frame distorts its xy
-#: distances by ~1e-5 of their length, and exact synthetic points would otherwise be named for
-#: any tilt).
+#: accuracy of large-volume instruments; exact synthetic points would otherwise be named for any
+#: tilt).
 TILT_RELATIVE = 1e-5
 #: Fiducials the check looks at, at most (evenly spaced in their order): O(J^2) pairs.
 TILT_MAX_POINTS = 2000
+#: The check is for plates: fiducials whose RMS distance from their best-fitting plane is at
+#: most this fraction of their RMS radius, in both frames. In a volume the xy and the 3D
+#: mismatch are different samples of the noise, and with a few dozen fiducials they differ by
+#: chance as much as a tilt would make them (a volume turned about z, noise only: up to 60 %).
+PLATE_FRACTION = 0.1
+
+
+def _plate(points: np.ndarray) -> bool:
+    """Whether the (J, 3) points lie near a plane (:data:`PLATE_FRACTION`)."""
+    centred = points - points.mean(axis=0)
+    thickness = np.linalg.svd(centred, compute_uv=False)[-1] / math.sqrt(len(points))
+    return bool(thickness <= PLATE_FRACTION * _rms_radius(points, points.mean(axis=0)))
 
 
 def dropped_z_warning(working: ArrayLike, destination: ArrayLike, unit: str) -> Optional[str]:
-    """The warning for fiducials read in 2D whose ignored z makes their xy points non-rigid, or
-    ``None``: the frames' xy planes are not parallel (a plate tilted in one of them), so the xy
-    distances are foreshortened in one frame and not in the other.
+    """The warning for fiducials read in 2D whose xy points are less rigid than the same points
+    in 3D, or ``None``: the frames' xy planes are not parallel (a plate tilted in one of them),
+    so the xy distances are foreshortened in one frame and not in the other.
 
-    Per pair of fiducials, the mismatch of eq. 1 in 2D minus that in 3D is what dropping z adds
-    (0 when the planes are parallel: a constant z offset, or the same tilt in both frames). It is
-    named when its RMS is at least :data:`TILT_SHARE` of sigma_L0 of the xy points and
-    :data:`TILT_RELATIVE` of their RMS radius. The corrections take such a distortion as bias
-    (a smooth field), so the corrected registration hardly suffers; the uncorrected one does (the
+    For a plate (:data:`PLATE_FRACTION`, in both frames; what 2D is for), sigma_L0 (eq. 1, 7)
+    of the xy points is compared with sigma_L0 of the 3D points; dropping z
+    distorted the cell when the first exceeds the second by at least :data:`TILT_SHARE` of it in
+    quadrature, and by :data:`TILT_RELATIVE` of the cell. When the xy planes are parallel (a
+    constant z offset, the same tilt in both frames, frames turned about z only) the two are
+    alike, since noise and bias project alike on a pair's direction in 2D and 3D; when z is
+    noisier than x, y or not a measurement in one frame (z = 0 of a drawing), the 3D points are
+    the less rigid ones: neither is named. The corrections take such a distortion as bias (a
+    smooth field), so the corrected registration hardly suffers; the uncorrected one does (the
     RA-like plate tilted 3 degrees: TRE_u 0.44 instead of 0.32 mm).
 
-    :param working: (J, 3) the fiducials in the working frame (rows with a NaN z: not given,
+    :param working: (J, 3) the fiducials in the working frame (rows with a NaN: not given,
         ignored); :param destination: (J, 3) the same in the destination frame; :param unit: of
         the lengths, for the text ("": none named).
     """
@@ -205,22 +222,21 @@ def dropped_z_warning(working: ArrayLike, destination: ArrayLike, unit: str) -> 
     if len(w) > TILT_MAX_POINTS:
         pick = np.linspace(0, len(w) - 1, TILT_MAX_POINTS).round().astype(np.intp)
         w, d = w[pick], d[pick]
-    if len(w) < 3:
+    if len(w) < 4 or not (_plate(w) and _plate(d)):
         return None
-    flat = pdist(w[:, :2]) - pdist(d[:, :2])              # eq. 1 as read, in 2D
-    added = flat - (pdist(w) - pdist(d))                  # what dropping z adds to it
-    sigma_l0 = float(np.std(flat))
-    extra = float(np.sqrt(np.mean(added * added)))
+    flat = float(np.std(pdist(w[:, :2]) - pdist(d[:, :2])))       # sigma_L0 of the xy points
+    solid = float(np.std(pdist(w) - pdist(d)))                     # ... of the 3D points
+    excess = math.sqrt(max(flat * flat - solid * solid, 0.0))
     size = _rms_radius(d[:, :2], d[:, :2].mean(axis=0))
-    if not (extra >= TILT_SHARE * sigma_l0 and extra >= TILT_RELATIVE * size and extra > 0):
+    if not (excess > 0 and excess >= TILT_SHARE * flat and excess >= TILT_RELATIVE * size):
         return None
     u = f" {unit}" if unit else ""
-    return (f"read in 2D, dropping the fiducials' z changes their distances by {extra:.3g}{u} "
-            f"RMS between the frames, {100 * extra / sigma_l0:.0f} % of the mismatch sigma_L0 "
-            f"{sigma_l0:.3g}{u} of the xy points: the frames' xy planes are not parallel (a plate "
-            f"tilted in one of them?); the corrections take it as bias, the uncorrected "
-            f"registration does not. Level the plate, or read the fiducials in 3D with the "
-            f"kriging interpolation (the paper's 3D interpolation needs fiducials off a plane)")
+    return (f"read in 2D, the fiducials' xy points are less rigid than the same points with z: "
+            f"their mismatch sigma_L0 is {flat:.3g}{u} against {solid:.3g}{u} in 3D: the "
+            f"frames' xy planes are not parallel (a plate tilted in one of them?); the "
+            f"corrections take it as bias, the uncorrected registration does not. Level the "
+            f"plate, or read the fiducials in 3D with the kriging interpolation (the paper's 3D "
+            f"interpolation needs fiducials off a plane)")
 
 
 #: The uncorrected FRE above this fraction of the destination fiducials' RMS radius: the frames

@@ -429,9 +429,9 @@ def test_a_tilted_plate_is_named_only_when_the_tilt_distorts_it(tmp_path, degree
     """A review of the rule above (a z range over 1 % of the cell): the RA-like plate (single
     measurements, its own bias and noise) tilted 0.3 degrees in the working frame was named,
     though the tilt changes its xy distances by ~1e-5 of their length and TRE_u by 0.6 %, and
-    the advice (read in 3D) was refused as coplanar. Now the rule weighs what dropping z adds to
-    the mismatch of eq. 1 against sigma_L0 of the xy points: named at 3 degrees (61 % of it;
-    TRE_u 0.44 instead of 0.32 mm), not at 1 (10 %), with advice that works for a plate."""
+    the advice (read in 3D) was refused as coplanar. Now the rule compares sigma_L0 of the xy
+    points with that of the 3D points: named at 3 degrees (0.415 against 0.28 mm; TRE_u 0.44
+    instead of 0.32 mm), not at 1, with advice that works for a plate."""
     from rbc_registration.core.synthetic import make_cell
 
     a = np.radians(degrees)
@@ -445,5 +445,33 @@ def test_a_tilted_plate_is_named_only_when_the_tilt_distorts_it(tmp_path, degree
              if "read in 2D" in n]
     assert len(notes) == int(warned), notes
     if warned:
-        assert "% of the mismatch sigma_L0" in notes[0] and "\n" not in notes[0]
+        assert "their mismatch sigma_L0 is 0.415 against 0.28 in 3D" in notes[0]
         assert "read the fiducials in 3D with the kriging interpolation" in notes[0]
+        assert "\n" not in notes[0]
+
+
+@pytest.mark.parametrize("case", ["volume", "drawing", "same-xy"])
+def test_z_that_is_no_tilt_is_not_named(tmp_path, case):
+    """A second review: the rule that weighed the 2D against the 3D mismatch pair by pair named
+    a volume turned about z only (noise: 53 %), a plate whose destination z are a drawing's 0
+    beside measured heights of +-10 mm (535 %), and divided by zero when the xy points were the
+    same in both frames (a traceback; the node built no model). None is named now: a volume is
+    no plate (its xy and 3D mismatch differ by chance), and a z that is noisier than x, y or not
+    measured makes the 3D points the less rigid ones."""
+    rng = np.random.default_rng(3)
+    p = np.c_[rng.uniform(0, 500, (40, 2)), np.zeros(40)]
+    if case == "volume":
+        p[:, 2] = rng.uniform(0, 500, 40)
+    a = 0.5
+    turn = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    w = p @ turn.T + rng.normal(0, 0.06, p.shape)
+    d = p.copy()
+    if case == "drawing":
+        w[:, 2] += rng.uniform(-10, 10, 40)
+    if case == "same-xy":
+        w = d.copy()
+        w[:, 2] = rng.uniform(0, 30, 40)
+    rows = "".join(f"p{k},{','.join(repr(float(v)) for v in (*w[k], *d[k]))}\n"
+                   for k in range(40))
+    notes = read_fiducials(write(tmp_path, H3 + rows), dim=2).notes
+    assert not [n for n in notes if "read in 2D" in n], notes
