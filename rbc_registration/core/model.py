@@ -175,7 +175,7 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
                                             repeat_statistics)
     if config.known_sigma is not None:
         sigma, source = config.known_sigma, SIGMA_SOURCES[0]
-    elif sigma_est:     # None when every repeat is a copy: no noise estimate (noise.copied_repeats)
+    elif sigma_est:     # identical repeats give 0: no noise estimate (noise.identical_repeats)
         sigma, source = sigma_est, SIGMA_SOURCES[1]
     else:
         sigma, source = None, SIGMA_SOURCES[2]
