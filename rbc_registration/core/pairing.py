@@ -35,15 +35,22 @@ stream's previous stamp again) are not checked: pairing then goes by arrival ord
 frame and stamp: a topic recorded twice, a point republished; among the stream's last
 :data:`COPY_MEMORY` distinct points) is dropped as a duplicate before any of this, so its copy
 makes no point ambiguous (a bag with both point topics recorded twice lost
-every measurement to ``ambiguous``). Unstamped points (stamp 0) cannot be told from a repeat
-of the same hole (a robot's destination point is the same, bit for bit, every time) and are
-never duplicates, as for measurements (:mod:`.accumulator`).
+every measurement to ``ambiguous``). Where stamps do not tell measurements apart, a copy
+cannot be told from a repeat of the same hole (a robot's destination point is the same, bit for
+bit, every time): unstamped points (stamp 0) are never duplicates, as for measurements
+(:mod:`.accumulator`), and neither are the points of a stream once two different points of it
+came with one stamp (a driver that stamps every point with one time; both streams from then
+on, as the drivers of a cell are set up alike). Before that is seen, a copy of the first point
+is dropped: with such stamps a robot that publishes a hole's destination point before the
+tracker's working point loses the first hole's second measurement, and pairing by arrival
+order then pairs every later point wrongly (the stamps' own warning, :attr:`PairingResult.
+repeated`, says so: stamp each measurement, or publish ``FiducialPair``).
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -129,6 +136,11 @@ class StampPairer:
         # look them up in O(1), the deque to forget the oldest).
         self._recent: dict[str, deque[StampedPoint]] = {WORKING: deque(), DESTINATION: deque()}
         self._recent_set: dict[str, set[StampedPoint]] = {WORKING: set(), DESTINATION: set()}
+        # How many of those carry each stamp, and whether two different points of a stream
+        # came with one stamp (then stamps do not tell measurements apart: no duplicates).
+        self._recent_stamps: dict[str, Counter[float]] = {WORKING: Counter(),
+                                                          DESTINATION: Counter()}
+        self._shared_stamps = False
         self.n_pairs = 0
         self.n_dropped = 0
         self.n_ambiguous = 0    # points refused as ambiguous (also counted in n_dropped)
@@ -152,8 +164,9 @@ class StampPairer:
     def clear(self) -> None:
         """Drop every buffered point without reporting it (e.g. on reset)."""
         for buf in (*self._buffers.values(), *self._seen.values(), *self._recent.values(),
-                    *self._recent_set.values()):
+                    *self._recent_set.values(), *self._recent_stamps.values()):
             buf.clear()
+        self._shared_stamps = False
         self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
         self._previous = {}
 
@@ -232,19 +245,29 @@ class StampPairer:
         return PairingResult(pairs, tuple(dropped), repeated)
 
     def _is_copy(self, stream: str, point: StampedPoint) -> bool:
-        """Whether ``point`` is stamped and equals (coordinates, frame and stamp) one of the last
-        :data:`COPY_MEMORY` distinct points of ``stream``; if not, it is remembered. An unstamped
-        point (stamp 0) is never a copy (module docstring)."""
-        if point.stamp_s == 0.0:
+        """Whether ``point`` equals (coordinates, frame and stamp) one of the last
+        :data:`COPY_MEMORY` distinct points of ``stream`` whose stamps tell measurements apart;
+        if not, it is remembered. An unstamped point (stamp 0) is never a copy, nor is any point
+        once a stream brought two different points with one stamp (module docstring)."""
+        if point.stamp_s == 0.0 or self._shared_stamps:
             return False
         known = self._recent_set[stream]
         if point in known:
             return True
+        stamps = self._recent_stamps[stream]
+        if stamps[point.stamp_s]:
+            self._shared_stamps = True
+            return False
         recent = self._recent[stream]
         recent.append(point)
         known.add(point)
+        stamps[point.stamp_s] += 1
         if len(recent) > COPY_MEMORY:
-            known.discard(recent.popleft())
+            old = recent.popleft()
+            known.discard(old)
+            stamps[old.stamp_s] -= 1
+            if not stamps[old.stamp_s]:
+                del stamps[old.stamp_s]
         return False
 
     def _ambiguous(self, stream: str, point: StampedPoint, dropped: list[DroppedPoint]) -> bool:

@@ -97,16 +97,19 @@ def test_a_pair_made_again_is_a_duplicate_and_reported_as_recorded():
     assert acc.rejected["duplicate"] == 2 and acc.n_measurements == 1
 
 
+@pytest.mark.parametrize("stamp_ns", [0, 1_700_000_000_000_000_000])
 @pytest.mark.parametrize("grouped", [False, True])
-def test_unstamped_points_of_repeats_are_measurements_not_copies(grouped):
+def test_unstamped_points_of_repeats_are_measurements_not_copies(grouped, stamp_ns):
     """A review of the copy rule: drivers that leave header.stamp at 0 pair by arrival order,
     and a robot's destination point of a repeat of the same hole is the same, bit for bit. Every
     repeat's destination point was dropped as a 'duplicate' (250 of 375 in cell A with 3
     repeats), and with each hole measured 3 times back to back the waiting working point took the
     next hole's destination point (FRE 1.6 m). Unstamped points are never copies, as unstamped
-    measurements are never duplicates: every repeat is a measurement of its own hole."""
+    measurements are never duplicates: every repeat is a measurement of its own hole. A second
+    review: the same with one constant stamp for every point (a driver stamping a session's
+    time); once two different points share a stamp, no point is a copy."""
     cell = make_cell("A", seed=0, repeats=3)
-    messages = [m._replace(stamp_ns=0) for m in cell_messages(cell, points=True)
+    messages = [m._replace(stamp_ns=stamp_ns) for m in cell_messages(cell, points=True)
                 if m.topic.endswith("_point")]
     if grouped:         # each hole 3 times, then the next (pairs of working, destination)
         pairs = [messages[i:i + 2] for i in range(0, len(messages), 2)]
