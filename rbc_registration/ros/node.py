@@ -306,12 +306,12 @@ def start_failure(exc: BaseException) -> str:
 
 def startup_logger_name(args: Optional[list[str]] = None) -> str:
     """The logger name of the node as the command line remaps it (``-r __node:=NAME`` or
-    ``__name:=NAME``, ``-r __ns:=/ns``, also as ``registration_node:__node:=NAME``; the last
-    rule wins), for the lines logged before the node exists or after it failed: with several
-    nodes in a launch, the FATAL line names the one that could not start. rclpy's node loggers
-    join the namespace and name with dots."""
+    ``__name:=NAME``, ``-r __ns:=/ns``, also as ``registration_node:__node:=NAME``; as in rcl,
+    the first rule of each wins), for the lines logged before the node exists or after it
+    failed: with several nodes in a launch, the FATAL line names the one that could not start.
+    rclpy's node loggers join the namespace and name with dots."""
     argv = sys.argv if args is None else args
-    name, namespace = NODE_NAME, ""
+    name, namespace = None, None
     for flag, rule in zip(argv, argv[1:]):
         if flag not in ("-r", "--remap"):
             continue
@@ -319,11 +319,11 @@ def startup_logger_name(args: Optional[list[str]] = None) -> str:
         node, _, key = target.rpartition(":")
         if not sep or (node and node != NODE_NAME) or not value:
             continue
-        if key in ("__node", "__name"):     # rcl takes both spellings
+        if key in ("__node", "__name") and name is None:    # rcl: both spellings, first wins
             name = value
-        elif key == "__ns":
+        elif key == "__ns" and namespace is None:
             namespace = value
-    return ".".join(part for part in (*namespace.split("/"), name) if part)
+    return ".".join(part for part in (*(namespace or "").split("/"), name or NODE_NAME) if part)
 
 
 def main(args: Optional[list[str]] = None, **node_options: Any) -> None:

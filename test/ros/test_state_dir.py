@@ -265,9 +265,10 @@ class TestRecomputeDoesNotBlock(RosTestBase):
     (["--ros-args", "--remap", "__ns:=/line2/cell", "-r", "__node:=reg"], "line2.cell.reg"),
     (["--ros-args", "-r", "registration_node:__node:=mine", "-r", "other:__node:=theirs"],
      "mine"),
-    (["--ros-args", "-r", "__node:=a", "-r", "__node:=b"], "b"),
+    (["--ros-args", "-r", "__node:=a", "-r", "__node:=b"], "a"),      # rcl: the first wins
     (["--ros-args", "-r", "__name:=cell_b"], "cell_b"),       # rcl's other spelling (review)
-    (["--ros-args", "-r", "__node:=a", "-r", "__name:=c"], "c"),
+    (["--ros-args", "-r", "__name:=first", "-r", "__node:=second"], "first"),
+    (["--ros-args", "-r", "__ns:=/x", "-r", "__ns:=/y", "-r", "__node:=n"], "x.n"),
     (["--ros-args", "-r", "/chatter:=/talk", "-p", "__node:=x"], "registration_node"),
 ])
 def test_start_up_lines_name_the_node_as_remapped(argv, name):
