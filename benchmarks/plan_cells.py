@@ -200,7 +200,8 @@ def paired_summary(runs: list[dict], counts: np.ndarray) -> list[str]:
                 continue
             per_seed = diff[:, sel].mean(axis=1)
             p = scipy.stats.ttest_1samp(per_seed, 0.0).pvalue
-            parts.append(f"counts {lo}-{min(hi, int(counts[-1]))}: {per_seed.mean() * 1e3:+.2f} "
+            parts.append(f"counts {max(lo, int(counts[0]))}-{min(hi, int(counts[-1]))}: "
+                         f"{per_seed.mean() * 1e3:+.2f} "
                          f"± {per_seed.std(ddof=1) / np.sqrt(len(runs)) * 1e3:.2f} µm "
                          f"(p = {p:.2g})")
         lines.append(f"- planner - {order}, paired over {len(runs)} seeds: " + "; ".join(parts)
