@@ -9,6 +9,7 @@ never wait for a recompute. See msg_docs/README.md for every topic, service, par
 
 from __future__ import annotations
 
+import re
 import sys
 import threading
 import time
@@ -271,7 +272,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             return              # ~/reset came meanwhile
         if state.error:
             self.get_logger().warning(state.error)
-        elif state.warning and state.warning != previous.warning:
+        elif state.warning and _wording(state.warning) != _wording(previous.warning):
             self.get_logger().warning(state.warning)
 
     def _on_worker_error(self, exc: BaseException) -> None:
@@ -295,6 +296,12 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             if part is not None:
                 getattr(part, stop)()
         super().destroy_node()
+
+
+def _wording(warning: str) -> str:
+    """A model-state warning without its numbers: the node logs a warning again only when this
+    changes, not at every rebuild whose numbers moved (the status carries the current ones)."""
+    return re.sub(r"\d+(\.\d*)?(e[-+]?\d+)?", "#", warning)
 
 
 def start_failure(exc: BaseException) -> str:

@@ -276,3 +276,14 @@ def test_start_up_lines_name_the_node_as_remapped(argv, name):
     ``[registration_node]``, whichever node failed."""
     from rbc_registration.ros.node import startup_logger_name
     assert startup_logger_name(["registration_node", *argv]) == name
+
+
+def test_a_warning_is_logged_again_only_when_its_wording_changes():
+    """A review: the tilted-plate line's numbers move with every new fiducial, so the node logged
+    a WARN at every rebuild while measuring. The log compares the lines without their numbers."""
+    from rbc_registration.ros.node import _wording
+    a = ("read in 2D, the fiducials' xy points are less rigid than the same points with z: "
+         "their mismatch sigma_L0 is 0.000415 m against 2.8e-05 m in 3D")
+    b = a.replace("0.000415", "0.000431").replace("2.8e-05", "3.1e-05")
+    assert _wording(a) == _wording(b) != _wording(a + "; one point under two ids: 'F1', 'F2'")
+    assert _wording("") == ""
