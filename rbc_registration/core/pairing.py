@@ -39,18 +39,19 @@ every measurement to ``ambiguous``). Where stamps do not tell measurements apart
 cannot be told from a repeat of the same hole (a robot's destination point is the same, bit for
 bit, every time): unstamped points (stamp 0) are never duplicates, as for measurements
 (:mod:`.accumulator`), and neither are the points of a stream once two different points of it
-came with one stamp (a driver that stamps every point with one time; both streams from then
-on, as the drivers of a cell are set up alike). Before that is seen, a copy of the first point
-is dropped: with such stamps a robot that publishes a hole's destination point before the
-tracker's working point loses the first hole's second measurement, and pairing by arrival
-order then pairs every later point wrongly (the stamps' own warning, :attr:`PairingResult.
-repeated`, says so: stamp each measurement, or publish ``FiducialPair``).
+came in a row with one stamp (a driver that stamps every point with one time, or each hole's
+repeats with one; both streams from then on, as the drivers of a cell are set up alike). Before
+that is seen, a copy of the first such point is dropped: a robot that publishes a hole's
+destination point before the tracker's working point loses that second measurement, and with
+one constant stamp pairing by arrival order then pairs every later point wrongly (the stamps'
+own warning, :attr:`PairingResult.repeated`, says so: stamp each measurement, or publish
+``FiducialPair``).
 """
 
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
+from collections import deque
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -136,10 +137,8 @@ class StampPairer:
         # look them up in O(1), the deque to forget the oldest).
         self._recent: dict[str, deque[StampedPoint]] = {WORKING: deque(), DESTINATION: deque()}
         self._recent_set: dict[str, set[StampedPoint]] = {WORKING: set(), DESTINATION: set()}
-        # How many of those carry each stamp, and whether two different points of a stream
-        # came with one stamp (then stamps do not tell measurements apart: no duplicates).
-        self._recent_stamps: dict[str, Counter[float]] = {WORKING: Counter(),
-                                                          DESTINATION: Counter()}
+        # Whether a stream brought two different points in a row with one stamp (then stamps
+        # do not tell measurements apart: no duplicates).
         self._shared_stamps = False
         self.n_pairs = 0
         self.n_dropped = 0
@@ -164,7 +163,7 @@ class StampPairer:
     def clear(self) -> None:
         """Drop every buffered point without reporting it (e.g. on reset)."""
         for buf in (*self._buffers.values(), *self._seen.values(), *self._recent.values(),
-                    *self._recent_set.values(), *self._recent_stamps.values()):
+                    *self._recent_set.values()):
             buf.clear()
         self._shared_stamps = False
         self._latest = {WORKING: -math.inf, DESTINATION: -math.inf}
@@ -248,26 +247,22 @@ class StampPairer:
         """Whether ``point`` equals (coordinates, frame and stamp) one of the last
         :data:`COPY_MEMORY` distinct points of ``stream`` whose stamps tell measurements apart;
         if not, it is remembered. An unstamped point (stamp 0) is never a copy, nor is any point
-        once a stream brought two different points with one stamp (module docstring)."""
-        if point.stamp_s == 0.0 or self._shared_stamps:
+        once a stream brought two different points in a row with one stamp (module docstring).
+        A point with a NaN or inf coordinate (rejected later) is no copy and tells nothing."""
+        if point.stamp_s == 0.0 or self._shared_stamps or not all(map(math.isfinite,
+                                                                          point.xyz)):
             return False
         known = self._recent_set[stream]
         if point in known:
             return True
-        stamps = self._recent_stamps[stream]
-        if stamps[point.stamp_s]:
+        if self._previous.get(stream) == point.stamp_s:
             self._shared_stamps = True
             return False
         recent = self._recent[stream]
         recent.append(point)
         known.add(point)
-        stamps[point.stamp_s] += 1
         if len(recent) > COPY_MEMORY:
-            old = recent.popleft()
-            known.discard(old)
-            stamps[old.stamp_s] -= 1
-            if not stamps[old.stamp_s]:
-                del stamps[old.stamp_s]
+            known.discard(recent.popleft())
         return False
 
     def _ambiguous(self, stream: str, point: StampedPoint, dropped: list[DroppedPoint]) -> bool:

@@ -159,10 +159,11 @@ class Ingest:
         if not self._accept(record):
             return _Outcome(None, JOURNAL_FAILED,
                             f"journal write failed, not accepted: {self.journal_error}")
+        working, destination = args[1], args[2]         # PairArgs or a plain tuple
         if (self._acc.dimension == 2 and record.fiducial_id not in self._first_xyz
-                and len(args.working_xyz) == 3 and len(args.destination_xyz) == 3):
-            self._first_xyz[record.fiducial_id] = (tuple(map(float, args.working_xyz)),
-                                                   tuple(map(float, args.destination_xyz)))
+                and len(working) == 3 and len(destination) == 3):
+            self._first_xyz[record.fiducial_id] = (tuple(map(float, working)),
+                                                   tuple(map(float, destination)))
         return _Outcome(record)
 
     def reject(self, exc: RejectedMeasurement) -> None:

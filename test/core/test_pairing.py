@@ -311,3 +311,35 @@ def test_a_discarded_point_is_no_candidate_of_the_ambiguity_rule():
     r = p.add_destination([4.0, 5.0, 6.0], "world", 5.0)
     assert r.pairs == () and r.dropped == () and p.pending("destination") == 1
     assert p.n_ambiguous == 0
+
+
+def test_a_nan_point_does_not_turn_the_copy_rule_off():
+    """A third review: NaN != NaN, so the copy of a NaN point (a tracker that lost its beam, in a
+    topic recorded twice) looked like another point with the same stamp, the rule for streams
+    whose stamps repeat turned copy dropping off, and every later copy made its measurement
+    ambiguous (a bag lost all but 3 fiducials). A point with a NaN is no copy and tells
+    nothing about the stamps; the later copies are dropped and every later pair is made."""
+    p = StampPairer(slop=0.05)
+    pairs, dropped = [], []
+    for k in range(6):
+        w = [math.nan, 0, 0] if k == 2 else [k, 0, 0]
+        for stream, xyz, frame in (("w", w, "tracker"), ("w", w, "tracker"),
+                                   ("d", [k, 1, 0], "world"), ("d", [k, 1, 0], "world")):
+            res = (p.add_working if stream == "w" else p.add_destination)(xyz, frame, 1.0 + k)
+            pairs += res.pairs
+            dropped += res.dropped
+    made = [q.working.xyz[0] for q in pairs]
+    assert [x for x in made if not math.isnan(x)] == [0, 1, 3, 4, 5]
+    # the copies of the 5 finite measurements and of the NaN one's destination point
+    assert sum(x.duplicate for x in dropped) == 11
+    assert not any(x.ambiguous and x.point.stamp_s > 3.5 for x in dropped)
+
+
+def test_a_stream_whose_stamps_repeat_keeps_its_repeats():
+    """Two different points in a row with one stamp (one stamp per session, or per hole): the
+    stamps do not tell measurements apart, so an identical point after that is a repeat."""
+    p = StampPairer(slop=0.05)
+    for k in range(3):                      # one hole three times, working first, one stamp
+        p.add_working([0.001 * k, 0, 0], "tracker", 7.0)
+        res = p.add_destination([5, 5, 0], "world", 7.0)
+        assert len(res.pairs) == 1 and not any(x.duplicate for x in res.dropped)

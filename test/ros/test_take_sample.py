@@ -134,13 +134,16 @@ class TestTakeSample(NodeTestBase):
     def test_a_copy_of_a_paired_point_is_a_duplicate_and_not_sampled_again(self):
         """Pair mode, the point topics bridged twice: the copy of a paired working point made
         it the latest point again, unmarked, so ~/take_sample recorded the pair's measurement a
-        second time. The pairer drops the copy as a duplicate and the copy keeps the mark."""
+        second time. The pairer drops the copy as a duplicate and the copy keeps the mark.
+        Stamped points: an unstamped copy cannot be told from a repeat (core/pairing)."""
         node = self.make_node()
-        self.send(node, "working_point", self.cell["working"][0], "tracker")
-        self.send(node, "destination_point", self.cell["destination"][0], "world")
+        self.send(node, "working_point", self.cell["working"][0], "tracker", stamp=3.0)
+        self.send(node, "destination_point", self.cell["destination"][0], "world", stamp=3.0)
         wait_for(lambda: node.status().n_measurements == 1, what="the stamp pair")
         pub = self.publisher(node, PointStamped, "working_point")
-        pub.publish(_point(self.cell["working"][0], "tracker"))
+        copy = _point(self.cell["working"][0], "tracker")
+        copy.header.stamp.sec = 3
+        pub.publish(copy)
         wait_for(lambda: node.status().n_rejected_duplicate == 1, what="the copy refused")
         self.ros.client.destroy_publisher(pub)
         r = self.take(node, "H05")
