@@ -282,9 +282,9 @@ class TestDroppedZ(NodeTestBase):
             self.stream(node)
             state = self.recompute(node)
             assert state.model is not None
-            assert ("read in 2D, the fiducials' xy points are less rigid than the same points "
-                    "with z" in state.warning) == named, state.warning
+            assert ("read in 2D, the frames' xy planes are 3 degrees apart"
+                    in state.warning) == named, state.warning
             if named:
-                assert " m in 3D: the frames' xy planes are not parallel" in state.warning
+                assert "m RMS, against a mismatch sigma_L0 of" in state.warning
                 wait_for(lambda n=node: "read in 2D" in n.status().message,
                          what="status message")
