@@ -299,10 +299,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
 
 
 def _wording(warning: str) -> str:
-    """A model-state warning without its numbers (quoted ids kept): the node logs a warning
-    again only when this changes, not at every rebuild whose numbers moved (the status carries
-    the current ones)."""
-    return re.sub(r"('[^']*')|\d+(\.\d*)?(e[-+]?\d+)?", lambda m: m.group(1) or "#", warning)
+    """A model-state warning without its numbers (ids kept: quoted, or digits within a word such
+    as H012): the node logs a warning again only when this changes, not at every rebuild whose
+    numbers moved (the status carries the current ones)."""
+    return re.sub(r"('[^']*'|\"[^\"]*\")|(?<![\w.])\d+(\.\d*)?(e[-+]?\d+)?(?![\w.])",
+                  lambda m: m.group(1) or "#", warning)
 
 
 def start_failure(exc: BaseException) -> str:

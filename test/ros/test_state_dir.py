@@ -287,5 +287,9 @@ def test_a_warning_is_logged_again_only_when_its_wording_changes():
     b = a.replace("0.000415", "0.000431").replace("2.8e-05", "3.1e-05")
     assert _wording(a) == _wording(b) != _wording(a + "; one point under two ids: 'F1', 'F2'")
     assert _wording("") == ""
-    # another fiducial named (ids are quoted) is another warning
+    # another fiducial named is another warning, its id quoted or not (a review: the
+    # held-out line names it bare, 'fiducial H012: ...'), and an id with a quote in it
     assert _wording("'F17' stands out: 2.5 mm") != _wording("'F18' stands out: 2.5 mm")
+    assert _wording("fiducial H012: held-out error 2.5 mm") != _wording(
+        "fiducial H031: held-out error 2.5 mm")
+    assert _wording('"it\'s 7" 2.5') != _wording('"it\'s 8" 2.5')
