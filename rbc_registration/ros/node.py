@@ -321,8 +321,11 @@ def startup_logger_name(args: Optional[list[str]] = None) -> str:
     rclpy's node loggers join the namespace and name with dots."""
     argv = sys.argv if args is None else args
     name, namespace = None, None
+    ros = False                             # within --ros-args ... [--]: rcl reads only those
     for flag, rule in zip(argv, argv[1:]):
-        if flag not in ("-r", "--remap"):
+        if flag in ("--ros-args", "--"):
+            ros = flag == "--ros-args"
+        if not ros or flag not in ("-r", "--remap"):
             continue
         target, sep, value = rule.partition(":=")
         node, _, key = target.rpartition(":")

@@ -270,6 +270,8 @@ class TestRecomputeDoesNotBlock(RosTestBase):
     (["--ros-args", "-r", "__name:=first", "-r", "__node:=second"], "first"),
     (["--ros-args", "-r", "__ns:=/x", "-r", "__ns:=/y", "-r", "__node:=n"], "x.n"),
     (["--ros-args", "-r", "/chatter:=/talk", "-p", "__node:=x"], "registration_node"),
+    (["-r", "__node:=x"], "registration_node"),             # not a ROS argument: rcl ignores it
+    (["--ros-args", "--", "-r", "__node:=x"], "registration_node"),
 ])
 def test_start_up_lines_name_the_node_as_remapped(argv, name):
     """A review: with several nodes in a launch every FATAL start-up line said
