@@ -201,9 +201,9 @@ def dropped_z_warning(working: ArrayLike, destination: ArrayLike, unit: str) -> 
     :data:`TILT_SHARE` of sigma_L0 of the xy points as read, :data:`TILT_RELATIVE` of the cell,
     and :data:`TILT_SIGNIFICANCE` times what the fit's uncertainty alone would make of it
     (R off by FRE / RMS radius, times the pairs' height differences), and when the xy points show
-    it (:data:`TILT_SEEN`). The corrections take such
-    a distortion as bias (a smooth field), so the corrected registration hardly suffers; the
-    uncorrected one does (the RA-like plate tilted 3 degrees: TRE_u 0.44 instead of 0.32 mm).
+    it (:data:`TILT_SEEN`). The corrections take such a distortion as bias (a smooth field), so
+    the corrected registration hardly suffers; the uncorrected one does (the RA-like plate tilted
+    3 degrees: TRE_u 0.44 instead of 0.32 mm).
 
     Limits: with a frame whose z is no measurement (a drawing's 0, no z column), a tilt of a
     flat plate is named, but fiducials at different heights (steps, a boss) make the 3D fit's

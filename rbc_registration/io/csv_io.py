@@ -269,21 +269,17 @@ def _dropped_z_note(rows: list, groups: dict) -> Optional[str]:
     number: that row is not looked at)."""
     from ..core.scale import dropped_z_warning
 
+    def value(row: dict, column: str) -> float:
+        text = (row.get(column) or "").strip() if column in row else "0"
+        try:
+            return float(text)
+        except ValueError:
+            return math.nan
+
     first = {line: row for line, row in rows}
-    points: dict[str, list] = {"w": [], "d": []}
-    for group in groups.values():
-        row = first[group[0][0]]
-        for frame, values in points.items():
-            xyz = []
-            for axis in "xyz":
-                column = frame + axis
-                text = (row.get(column) or "").strip() if column in row else "0"
-                try:
-                    xyz.append(float(text))
-                except ValueError:
-                    xyz.append(math.nan)
-            values.append(xyz)
-    return dropped_z_warning(points["w"], points["d"], "")
+    heads = [first[group[0][0]] for group in groups.values()]
+    return dropped_z_warning([[value(r, "w" + a) for a in "xyz"] for r in heads],
+                             [[value(r, "d" + a) for a in "xyz"] for r in heads], "")
 
 
 #: Ignored working-frame repeats named one line each; beyond that, one summary line.

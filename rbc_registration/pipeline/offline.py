@@ -236,4 +236,3 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
     state = with_warning(state, acc.dropped_z)
     return OfflineModel(state.model, state.fiducials, settings, targets, acc.rejected, notes,
                         state.warning, tuple(acc.first_rejections.items()))
-
