@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 from .constants import CANDIDATES, FOLD_KINDS, INTERPOLATIONS, UNCORRECTED
 from .interpolation import PaperInterpolator
 from .kriging import KrigingInterpolator
+from .groups import first_members, merge_labels
 from .registration import Registration, rigid_fit
 from .repeats import twin_groups
 from .restoration import restore_rigid_body
@@ -73,21 +74,30 @@ def fold_scheme(count: int) -> FoldScheme:
     return FoldScheme(FOLD_KINDS[1], K_FOLDS)
 
 
+def held_out_units(working: NDArray[np.float64], destination: Optional[NDArray[np.float64]],
+                   groups: Optional[NDArray[np.intp]] = None) -> Optional[NDArray[np.intp]]:
+    """The units held out together, as labels (J,): the given ``groups``
+    (:func:`~.groups.group_labels`) joined with one point under several ids
+    (:func:`~.repeats.twin_groups`, with ``destination``); ``None`` when every fiducial is its
+    own unit."""
+    twins = twin_groups(working, destination) if destination is not None else []
+    return merge_labels(groups, twins, len(working))
+
+
 def fold_groups(working: NDArray[np.float64], scheme: FoldScheme,
-                destination: Optional[NDArray[np.float64]] = None) -> list[NDArray[np.intp]]:
+                destination: Optional[NDArray[np.float64]] = None,
+                groups: Optional[NDArray[np.intp]] = None) -> list[NDArray[np.intp]]:
     """The index sets held out together. k-fold: the fiducials ranked by distance from their
     centroid (stable for ties), rank r in fold r mod k, so every fold spans the cell and the split
     does not depend on the order of the fiducials nor on a rigid motion of either frame.
 
-    With ``destination``, one point under several ids
-    (:func:`~.repeats.twin_groups`) is held out together: leave-one-out leaves the group out,
-    k-fold puts it in the fold of its first fiducial.
+    A unit of :func:`held_out_units` (a given group, one point under several ids) is held out
+    together: leave-one-out leaves the unit out (leave-one-group-out), k-fold puts it in the
+    fold of its first fiducial.
     """
     j = len(working)
-    twins = twin_groups(working, destination) if destination is not None else []
-    first = np.arange(j)
-    for group in twins:
-        first[group] = group[0]
+    units = held_out_units(working, destination, groups)
+    first = np.arange(j) if units is None else first_members(units)
     if scheme.kind == FOLD_KINDS[0]:
         return [np.flatnonzero(first == k) for k in range(j) if first[k] == k]
     radius = np.linalg.norm(working - working.mean(axis=0), axis=1)
@@ -108,6 +118,9 @@ class CrossValidation(NamedTuple):
     :ivar unavailable: candidates that could not be cross-validated, with the reason.
     :ivar resolution: :data:`.validation.RESOLUTION` x the largest coordinate: differences of
         held-out errors below it are rounding, not accuracy (0: unknown).
+    :ivar units: (J,) labels of the units held out together (:func:`held_out_units`: given
+        groups, one point under several ids); ``None`` when every fiducial is its own unit. The
+        paired test compares one mean error per unit, the bound weighs every unit alike.
     """
 
     scheme: FoldScheme
@@ -115,6 +128,14 @@ class CrossValidation(NamedTuple):
     scale: Optional[NDArray[np.float64]]
     unavailable: Mapping[str, str]
     resolution: float = 0.0
+    units: Optional[NDArray[np.intp]] = None
+
+    @property
+    def n_units(self) -> int:
+        """The number of units held out (groups; fiducials without groups)."""
+        if self.units is None:
+            return max((len(e) for e in self.errors.values()), default=0)
+        return int(self.units.max()) + 1 if self.units.size else 0
 
 
 def minimum_fiducials(dimension: int) -> int:
@@ -189,7 +210,8 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
                    steps: int = 2, uncorrected_subset: Optional[Sequence[int]] = None,
                    corrected_subset: Optional[Sequence[int]] = None,
                    kriging: Union[None, KrigingInterpolator, Future] = None,
-                   scheme: Optional[FoldScheme] = None) -> CrossValidation:
+                   scheme: Optional[FoldScheme] = None,
+                   groups: Optional[NDArray[np.intp]] = None) -> CrossValidation:
     """Held-out errors of each candidate (module docstring).
 
     :param working: fiducials in the working frame X (J, d).
@@ -203,7 +225,9 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
         covariance); needed for the ``kriging`` candidate and for ``scale``. Or a ``Future`` of
         it (:func:`~.model.build_model` builds one above the exact threshold in a thread beside
         the folds); when it fails with ValueError, kriging is unavailable with that reason.
-    :param scheme: the folds; default :func:`fold_scheme`.
+    :param scheme: the folds; default :func:`fold_scheme` of the number of units.
+    :param groups: (J,) group labels (:func:`~.groups.group_labels`): a group is held out
+        whole (leave-one-group-out, or k folds of groups); ``None``: no groups.
     :return: :class:`CrossValidation`; a candidate that fails (too few fiducials, degenerate
         geometry in a fold) is listed in ``unavailable`` with the reason.
     :raises ValueError: on bad input or an unknown candidate.
@@ -213,15 +237,23 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
     unknown = [c for c in candidates if c not in CANDIDATES]
     if unknown:
         raise ValueError(f"candidates must be among {CANDIDATES}, got {unknown}")
-    scheme = scheme or fold_scheme(j)
+    if groups is not None and len(groups) != j:
+        raise ValueError(f"got {len(groups)} group labels for {j} fiducials")
+    # without groups, twins are held out together but each fiducial stays a unit of the tests
+    units = held_out_units(x, y, groups) if groups is not None else None
+    n_units = j if units is None else int(units.max()) + 1
+    scheme = scheme or fold_scheme(n_units)
     unavailable: dict[str, str] = {}
     if j < minimum_fiducials(d):
         why = f"cross-validation needs at least {minimum_fiducials(d)} fiducials, got {j}"
         return CrossValidation(scheme, {}, None, {c: why for c in candidates})
+    if units is not None and n_units < 3:
+        why = f"cross-validation needs at least 3 groups, got {n_units}"
+        return CrossValidation(scheme, {}, None, {c: why for c in candidates}, units=units)
     if "kriging" in candidates and kriging is None:
         unavailable["kriging"] = "no kriging model"
-    groups = fold_groups(x, scheme, y)
-    if scheme.kind == FOLD_KINDS[0]:        # twins held out together: fewer folds than J
+    groups = fold_groups(x, scheme, y, groups)
+    if scheme.kind == FOLD_KINDS[0]:        # units held out together: fewer folds than J
         scheme = scheme._replace(n_folds=len(groups))
     held_out = _held_out(kriging, groups)
     scale = np.full(j, np.nan) if kriging is not None else None
@@ -291,4 +323,4 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
         e.setflags(write=False)
     if scale is not None:
         scale.setflags(write=False)
-    return CrossValidation(scheme, errors, scale, unavailable, rounding(x, y))
+    return CrossValidation(scheme, errors, scale, unavailable, rounding(x, y), units)

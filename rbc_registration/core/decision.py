@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .constants import CANDIDATES, UNCORRECTED, DecisionMode
 from .crossval import CrossValidation, FoldScheme
+from .groups import unit_means, weighted_quantile
 from .noise import Assessment, format_rho
 
 #: Family-wise level of the test: a correction is applied only when it beats the uncorrected
@@ -185,21 +186,23 @@ class Decision:
                                   "note": c.note} for c in self.candidates}}
 
 
-def conformal_quantile(values: ArrayLike, level: float = BOUND_LEVEL) -> float:
+def conformal_quantile(values: ArrayLike, level: float = BOUND_LEVEL,
+                       units: Optional[NDArray[np.intp]] = None) -> float:
     """The value at rank ceil(level (n + 1)) of n values (their maximum when n is too small for
-    the rank, below 1 / (1 - level) - 1 values); NaN for none."""
-    v = np.sort(np.asarray(values, dtype=np.float64))
-    if v.size == 0:
-        return math.nan
-    return float(v[min(v.size, math.ceil(level * (v.size + 1))) - 1])
+    the rank, below 1 / (1 - level) - 1 values); NaN for none. With ``units`` (groups held out
+    together) every group weighs alike (:func:`~.groups.weighted_quantile`)."""
+    return weighted_quantile(values, level, units)
 
 
 def paired_test(uncorrected: NDArray[np.float64], method: NDArray[np.float64],
-                resolution: float = 0.0) -> tuple[float, float]:
+                resolution: float = 0.0,
+                units: Optional[NDArray[np.intp]] = None) -> tuple[float, float]:
     """One-sided Wilcoxon signed-rank test that ``method``'s errors are smaller (paired per
-    fiducial): (W+, p). Differences within :data:`TIE_TOLERANCE` of the median error, or within
+    fiducial, or per group with ``units``: the mean error of each group, one independent unit
+    each): (W+, p). Differences within :data:`TIE_TOLERANCE` of the median error, or within
     ``resolution`` (``CrossValidation.resolution``: rounding), are ties and dropped; identical
     errors give (0, 1)."""
+    uncorrected, method = unit_means(uncorrected, units), unit_means(method, units)
     diff = uncorrected - method
     tie = max(TIE_TOLERANCE * float(np.median(uncorrected)), resolution)
     diff[np.abs(diff) <= tie] = 0.0
@@ -216,9 +219,9 @@ def _score(cv: CrossValidation, method: str) -> CandidateScore:
     e = cv.errors[method]
     stat = p = None
     if method != UNCORRECTED and UNCORRECTED in cv.errors:
-        stat, p = paired_test(cv.errors[UNCORRECTED], e, cv.resolution)
+        stat, p = paired_test(cv.errors[UNCORRECTED], e, cv.resolution, cv.units)
     return CandidateScore(method, True, float(np.median(e)), float(np.sqrt(np.mean(e * e))),
-                          conformal_quantile(e), stat, p)
+                          conformal_quantile(e, units=cv.units), stat, p)
 
 
 def error_model(cv: CrossValidation, method: str) -> ErrorModel:
@@ -228,7 +231,8 @@ def error_model(cv: CrossValidation, method: str) -> ErrorModel:
     e = cv.errors[method]
     scaled = method != UNCORRECTED and cv.scale is not None and bool(np.all(cv.scale > 0))
     ratio = e / cv.scale if scaled else e
-    return ErrorModel(method, scaled, float(np.median(ratio)), conformal_quantile(ratio),
+    return ErrorModel(method, scaled, float(np.median(ratio)),
+                      conformal_quantile(ratio, units=cv.units),
                       scale_floor=float(np.min(cv.scale)) if scaled else 0.0)
 
 
@@ -237,22 +241,26 @@ def _g(v: float) -> str:
 
 
 def _preferred(winners: list[CandidateScore], errors: Mapping[str, NDArray[np.float64]],
-               resolution: float) -> CandidateScore:
+               resolution: float, units: Optional[NDArray[np.intp]]) -> CandidateScore:
     """The winner first in :data:`PREFERENCE`, unless another winner's held-out errors are
     significantly smaller than its own (then the one of those with the smallest median)."""
     ranked = sorted(winners, key=lambda s: PREFERENCE.index(s.method))
     first = ranked[0]
     better = [s for s in ranked[1:]
-              if paired_test(errors[first.method], errors[s.method], resolution)[1]
+              if paired_test(errors[first.method], errors[s.method], resolution, units)[1]
               < SIGNIFICANCE]
     return min(better, key=lambda s: s.cv_median) if better else first
 
 
-def _cv_choice(scores: list[CandidateScore], errors: Mapping[str, NDArray[np.float64]], n: int,
-               resolution: float) -> tuple[str, str, bool, tuple[float, ...]]:
+def _cv_choice(scores: list[CandidateScore], cv: CrossValidation
+               ) -> tuple[str, str, bool, tuple[float, ...]]:
     """The method, the reason as a template (``{k}``: the k-th length), whether confident, and
     the lengths the reason quotes."""
     lengths: list[float] = []
+    errors, resolution = cv.errors, cv.resolution
+    n = f"{_held_out_count(cv)} held-out fiducials"
+    if cv.units is not None:
+        n += f" ({cv.n_units} groups, each held out whole)"
 
     def length(v: float) -> str:
         lengths.append(v)
@@ -270,9 +278,9 @@ def _cv_choice(scores: list[CandidateScore], errors: Mapping[str, NDArray[np.flo
     level = SIGNIFICANCE / len(tested)
     winners = [s for s in tested if s.p_value < level]
     if winners:
-        best = _preferred(winners, errors, resolution)
+        best = _preferred(winners, errors, resolution, cv.units)
         lower = [s for s in winners if s.cv_median < best.cv_median]
-        head = (f"{best.method.capitalize()} corrections predicted the {n} held-out fiducials "
+        head = (f"{best.method.capitalize()} corrections predicted the {n} "
                 f"better than the uncorrected registration (median error "
                 f"{length(best.cv_median)} vs {length(base.cv_median)}, one-sided Wilcoxon p = "
                 f"{best.p_value:.2g} < {_g(level)}")
@@ -284,7 +292,7 @@ def _cv_choice(scores: list[CandidateScore], errors: Mapping[str, NDArray[np.flo
     confident = best.cv_median > (1.0 - RELEVANT_GAIN) * base.cv_median - resolution
     return UNCORRECTED, (
         f"No correction beat the uncorrected registration with {_g(100 * (1 - SIGNIFICANCE))} % "
-        f"confidence on the {n} held-out fiducials (best: {best.method}, median error "
+        f"confidence on the {n} (best: {best.method}, median error "
         f"{length(best.cv_median)} vs {length(base.cv_median)}, p = {best.p_value:.2g}), so the "
         f"uncorrected registration is used."), confident, tuple(lengths)
 
@@ -331,8 +339,7 @@ def decide(mode: DecisionMode, cv: CrossValidation, configured: str, assessment:
     if mode is DecisionMode.CV:
         if not scores or scores[0].method != UNCORRECTED:
             scores.insert(0, _score(cv, UNCORRECTED))
-        method, template, confident, lengths = _cv_choice(scores, cv.errors,
-                                                          _held_out_count(cv), cv.resolution)
+        method, template, confident, lengths = _cv_choice(scores, cv)
         reason = template.format(*(_g(v) for v in lengths))
     elif mode is DecisionMode.RHO:
         method, reason, confident = _rho_choice(assessment, configured, rho_reject, rho_apply)

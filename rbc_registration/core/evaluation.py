@@ -11,6 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .constants import FOLD_KINDS, UNCORRECTED
 from .crossval import FoldScheme, cross_validate
+from .groups import group_labels
 from .model import RbcModel
 from .validation import as_point_pairs
 
@@ -66,10 +67,11 @@ def leave_one_out(model: RbcModel) -> TargetErrors:
     reusable = (cv.scheme.kind == FOLD_KINDS[0] and cfg.uncorrected_subset is None
                 and cfg.corrected_subset is None)
     if not (reusable and UNCORRECTED in cv.errors and method in cv.errors):
+        labels = group_labels(model.groups, j)
         cv = cross_validate(model.working, model.destination, (UNCORRECTED, method),
                             restoration=cfg.restoration, steps=cfg.steps,
                             kriging=model.interpolators.get("kriging"),
-                            scheme=FoldScheme(FOLD_KINDS[0], len(model.working)))
+                            scheme=FoldScheme(FOLD_KINDS[0], j), groups=labels)
     if cv.unavailable:
         name, why = next(iter(cv.unavailable.items()))
         raise ValueError(f"leave-one-out of {name}: {why}")

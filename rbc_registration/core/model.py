@@ -27,6 +27,7 @@ from .config import ModelConfig
 from .constants import CANDIDATES, INTERPOLATIONS, SIGMA_SOURCES, UNCORRECTED, DecisionMode
 from .crossval import cross_validate, in_thread
 from .decision import Decision, decide
+from .groups import group_labels
 from .interpolation import PaperInterpolator
 from .kriging import KrigingHyperparameters, KrigingInterpolator, summarised
 from .noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
@@ -69,6 +70,8 @@ class RbcModel:
     interpolator: Interpolator = field(repr=False)
     interpolators: Mapping[str, Interpolator] = field(repr=False)
     decision: Decision = field(repr=False)
+    #: the group label of each fiducial ('' its own group; :mod:`.groups`), or ``None``
+    groups: Optional[tuple[str, ...]] = None
 
     @cached_property
     def fit_geometry(self) -> FitGeometry:
@@ -144,7 +147,8 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
                 working_repeats: Optional[Sequence[ArrayLike]] = None,
                 repeat_statistics: Optional[RepeatStats] = None,
                 kriging_hyperparameters: Optional[KrigingHyperparameters] = None,
-                kriging_warm_start: Optional[KrigingHyperparameters] = None) -> RbcModel:
+                kriging_warm_start: Optional[KrigingHyperparameters] = None,
+                groups: Optional[Sequence[str]] = None) -> RbcModel:
     """Build the RBC registration model from J fiducials, with its decision (``config.decision``).
 
     :param working: mean fiducial locations in the working frame X, (J, d).
@@ -158,6 +162,8 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     :param kriging_hyperparameters: use these GP hyper-parameters as they are (no fit).
     :param kriging_warm_start: fit the GP hyper-parameters starting from these, e.g. the previous
         model's ``kriging_hyperparameters`` (much faster when the fiducials changed little).
+    :param groups: a group label per fiducial ('' its own group): fiducials that share an error
+        (one robot pose, one probe) are held out together by the decision (:mod:`.groups`).
     :return: :class:`RbcModel`.
     :raises ValueError: on bad input or a degenerate fiducial configuration.
     """
@@ -171,6 +177,7 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
         raise ValueError(f"got {len(names)} ids for {j} fiducials")
     if len(set(names)) != j:
         raise ValueError("fiducial ids must be unique")
+    labels = group_labels(groups, j)
     stats, sigma_est = resolve_repeat_stats(j, config.dimension, working_repeats,
                                             repeat_statistics)
     if config.known_sigma is not None:
@@ -217,7 +224,8 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
                         uncorrected_subset=config.uncorrected_subset,
                         corrected_subset=config.corrected_subset,
                         kriging=pending or (interpolators.get("kriging")
-                                            if "kriging" in candidates else None))
+                                            if "kriging" in candidates else None),
+                        groups=labels)
     if pending is not None:
         try:
             interpolators["kriging"] = pending.result()
@@ -230,4 +238,5 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
                       config.rho_apply)
     return RbcModel(names, x, y, stats.counts, config, stats, restoration, uncorrected, corrected,
                     sigma, source, assessment.rho, assessment.recommendation,
-                    interpolators[config.interpolation], interpolators, decision)
+                    interpolators[config.interpolation], interpolators, decision,
+                    None if labels is None else tuple(str(g) for g in groups))

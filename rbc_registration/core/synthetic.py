@@ -66,6 +66,9 @@ class SyntheticCell:
     rotation: NDArray[np.float64]
     translation: NDArray[np.float64]
     unit: str = "mm"
+    #: (J, d) and (K, d): the points in the working frame with their bias, without noise
+    fiducial_biased: Optional[NDArray[np.float64]] = None
+    target_biased: Optional[NDArray[np.float64]] = None
 
     @property
     def fiducial_means(self) -> NDArray[np.float64]:
@@ -188,4 +191,6 @@ def make_cell(name: str, seed: int = 0, repeats: Optional[int] = None) -> Synthe
         tgt_true,
         rot,
         trans,
+        fiducial_biased=working(fid_true, amp),
+        target_biased=working(tgt_true, amp),
     )
