@@ -128,41 +128,16 @@ def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
     return lines
 
 
-def warn_blunders(command: str, model: object, unit: str) -> None:
-    """One warning line naming the fiducial whose held-out error stands out most
-    (:func:`rbc_registration.core.evaluation.describe_blunders`), if any."""
-    from ..core.evaluation import blunders, describe_blunders
-
-    line = describe_blunders(blunders(model), unit)
-    if line:
-        warn(command, line)
-
-
-def warn_model(command: str, model: Any, fiducials: Any, unit: str) -> None:
+def warn_model(command: str, model: Any, unit: str) -> None:
     """The warnings of a model built from a fiducials file (``register``, ``plan``), one line
-    each: frames that do not match rigidly or an unconverged restoration
-    (:func:`~rbc_registration.core.scale.rigidity_warnings`), repeats that scatter or are all
-    identical (:mod:`rbc_registration.core.noise`), a fiducial whose held-out error stands out
-    (:func:`warn_blunders`), one point under two ids (:mod:`rbc_registration.core.repeats`),
-    and a cell too large or too small for ``unit``
-    (:func:`~rbc_registration.core.scale.implausible_size`).
-
-    :param fiducials: the :class:`~rbc_registration.io.csv_io.FiducialTable` read.
-    """
-    from ..core.noise import identical_repeats, scattered_repeats
-    from ..core.repeats import describe_twins, twin_groups
-    from ..core.scale import implausible_size, rigidity_warnings
+    each: :func:`~rbc_registration.core.warnings.model_warnings`, and a cell too large or too
+    small for ``unit`` (:func:`~rbc_registration.core.scale.implausible_size`)."""
+    from ..core.scale import implausible_size
+    from ..core.warnings import model_warnings
     from ..io.calibration_model import METRES_PER_UNIT
 
-    for line in filter(None, (*rigidity_warnings(model, unit),
-                              scattered_repeats(model.ids, model.repeat_stats, unit),
-                              identical_repeats(model.repeat_stats, model.sigma_source))):
+    for line in model_warnings(model, unit):
         warn(command, line)
-    warn_blunders(command, model, unit)
-    twins = describe_twins(fiducials.ids, fiducials.working,
-                           twin_groups(fiducials.working, fiducials.destination), unit)
-    if twins:
-        warn(command, twins)
     if unit in METRES_PER_UNIT:
         size = implausible_size(model.destination, METRES_PER_UNIT[unit], unit)
         if size:

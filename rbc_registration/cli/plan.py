@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.model import build_model
     from ..core.model_planner import error_model_from, plan_from_model
     from ..core.planner import PlanConfig, overlap_notes, typical_repeats
-    from ..io.csv_io import read_fiducials, read_targets
+    from ..io.csv_io import read_fiducials, read_targets, target_sessions
     from ..io.plan_report import format_plan, plan_report
     from ..io.report import write_json
     from .register import model_config
@@ -89,26 +89,27 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:             # the message names the field: name its option
         option = next((o for f, o in _OPTIONS.items() if str(exc).startswith(f)), "plan")
         raise ValueError(f"{option}: {exc}") from None
-    fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance)
+    fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance,
+                         target_sessions(args.targets))
     for note in fid.notes:
         warn("plan", note)
     cand = read_targets(args.candidates, fid.dimension, args.outlier_distance, "candidate",
-                        fid.working)
+                        fid.working, sessions=fid.sessions)
     for note in overlap_notes(fid.working, fid.ids, cand.working, cand.ids):
         warn("plan", note)
     tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,
-                       fiducials=fid.working) if args.targets else None
+                       fiducials=fid.working, sessions=fid.sessions) if args.targets else None
     if tgt is not None and args.target_repeats is None:
         # the targets file's own rows per id: how often each target is measured
         config = replace(config, target_repeats=typical_repeats(tgt.counts))
     count = min(DEFAULT_COUNT, len(cand.ids)) if args.count is None else args.count
     model = build_model(fid.working, fid.destination, model_config(args, fid.dimension),
-                        ids=fid.ids, working_repeats=fid.working_repeats)
+                        ids=fid.ids, working_repeats=fid.working_repeats, groups=fid.groups)
     em = error_model_from(model)
     plan = plan_from_model(model, cand.working, tgt.working if tgt else None, count=count,
                            config=config, error_model=em)
     _warn_unit_mismatch(model.working, cand.working, tgt.working if tgt else None)
-    warn_model("plan", model, fid, args.unit)
+    warn_model("plan", model, args.unit)
     report = plan_report(plan, cand.ids, em, config, args.unit)
     print(format_plan(report))
     if args.json:

@@ -69,18 +69,19 @@ def run(args: argparse.Namespace) -> int:
     """Print the report, write JSON."""
     from ..core.evaluation import describe_misfits, gross_misfits, leave_one_out
     from ..core.model import build_model
-    from ..io.csv_io import read_fiducials, read_targets
+    from ..io.csv_io import read_fiducials, read_targets, target_sessions
     from ..io.report import format_report, model_report, write_json
 
     refuse_outputs_onto_inputs([("--json", args.json)], [("fiducials", args.fiducials),
                                                           ("--targets", args.targets)])
-    fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance)
+    fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance,
+                         target_sessions(args.targets))
     for note in fid.notes:
         warn("register", note)
     cfg = model_config(args, fid.dimension, fid.ids)
     try:
         model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
-                            working_repeats=fid.working_repeats)
+                            working_repeats=fid.working_repeats, groups=fid.groups)
     except ValueError as exc:   # name a fiducial the model cannot be built with, if one stands out
         flagged, misfit = gross_misfits(fid.working, fid.destination, floor=0.0)
         if not len(flagged):
@@ -89,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
                          f"{describe_misfits(fid.ids, misfit, flagged, args.unit)}: a typo or "
                          f"a wrong hole? fix or remove its rows") from None
     tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,
-                       fiducials=fid.working) if args.targets else None
+                       fiducials=fid.working, sessions=fid.sessions) if args.targets else None
     if tgt is not None and tgt.destination is not None:
         from ..pipeline.offline import truth_note
 
@@ -99,10 +100,12 @@ def run(args: argparse.Namespace) -> int:
     loo = leave_one_out(model) if args.loo else None
     report = model_report(model, tgt.ids if tgt else (), tgt.working if tgt else None,
                           tgt.destination if tgt else None, loo, args.unit)
+    if fid.sessions is not None:
+        report["sessions"] = fid.sessions.to_list()
     print(format_report(report))
     warn_unit_mismatch("register", model.working, tgt.working if tgt else None, report,
                        model.destination, tgt.destination if tgt else None)
-    warn_model("register", model, fid, args.unit)
+    warn_model("register", model, args.unit)
     if args.json:
         write_json(report, args.json)
         print(f"wrote {terminal(args.json)}")

@@ -58,12 +58,16 @@ class FoldScheme(NamedTuple):
 
     kind: str
     n_folds: int
+    #: whether groups of fiducials are held out whole (:mod:`.groups`)
+    grouped: bool = False
 
     def describe(self) -> str:
-        """E.g. ``leave-one-out (277 folds)`` or ``10-fold``."""
+        """E.g. ``leave-one-out (277 folds)``, ``leave-one-group-out (36 folds)`` or
+        ``10-fold``."""
         if self.kind == FOLD_KINDS[0]:
-            return f"{self.kind} ({self.n_folds} folds)"
-        return f"{self.n_folds}-fold"
+            kind = "leave-one-group-out" if self.grouped else self.kind
+            return f"{kind} ({self.n_folds} folds)"
+        return f"{self.n_folds}-fold" + (" (whole groups)" if self.grouped else "")
 
 
 def fold_scheme(count: int) -> FoldScheme:
@@ -242,7 +246,7 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
     # without groups, twins are held out together but each fiducial stays a unit of the tests
     units = held_out_units(x, y, groups) if groups is not None else None
     n_units = j if units is None else int(units.max()) + 1
-    scheme = scheme or fold_scheme(n_units)
+    scheme = (scheme or fold_scheme(n_units))._replace(grouped=units is not None)
     unavailable: dict[str, str] = {}
     if j < minimum_fiducials(d):
         why = f"cross-validation needs at least {minimum_fiducials(d)} fiducials, got {j}"

@@ -168,7 +168,7 @@ class Decision:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: ``mode``, ``apply``, ``method``, ``reason``, ``confident``,
-        ``significance``, ``folds`` {kind, n_folds}, ``rho``, ``rho_recommendation``,
+        ``significance``, ``folds`` {kind, n_folds, grouped}, ``rho``, ``rho_recommendation``,
         ``bound_level``, and ``cv``: per candidate {available, median, rms, bound, statistic,
         p_value, note} (NaN as None)."""
         def num(v: Optional[float]) -> Optional[float]:
@@ -177,7 +177,8 @@ class Decision:
         return {"mode": self.mode.value, "apply": self.apply, "method": self.method,
                 "reason": self.reason, "confident": self.confident,
                 "significance": self.significance,
-                "folds": {"kind": self.folds.kind, "n_folds": self.folds.n_folds},
+                "folds": {"kind": self.folds.kind, "n_folds": self.folds.n_folds,
+                          "grouped": self.folds.grouped},
                 "rho": num(self.rho), "rho_recommendation": self.rho_recommendation,
                 "bound_level": self.error_model.level,
                 "cv": {c.method: {"available": c.available, "median": num(c.cv_median),

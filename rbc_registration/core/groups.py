@@ -123,7 +123,8 @@ def undeclared_groups(ids: Sequence[str], working: ArrayLike,
     """One warning line when fiducials look grouped but no groups were given, else ``""``.
 
     Two signs, each needing sets of 2..:data:`MAX_DETECTED_GROUP` fiducials that together hold
-    at least :data:`DETECTED_SHARE` of them, every set tighter than the spacing between sets
+    at least :data:`DETECTED_SHARE` of them, each set's points closer to its centre than the
+    median distance between the centres of neighbouring sets
     (a plate's row ``H12-01`` ... ``H12-21`` spans the plate and is no pose):
 
     - fiducials whose first measurement has one stamp (not 0): several reflectors read at one
@@ -180,7 +181,7 @@ def _tight_sets(candidates: list[list[int]], x: NDArray[np.float64]) -> list[lis
     dist, _ = cKDTree(centres).query(centres, k=2)
     spacing = float(np.median(dist[:, 1]))
     spread = np.array([np.linalg.norm(x[s] - x[s].mean(axis=0), axis=1).max() for s in sets])
-    tight = [s for s, r in zip(sets, spread) if r < 0.5 * spacing]
+    tight = [s for s, r in zip(sets, spread) if r < spacing]
     if sum(len(s) for s in tight) < DETECTED_SHARE * len(x):
         return []
     return tight

@@ -4,6 +4,14 @@ FIDUCIALS.csv: header ``id,wx,wy,wz,dx,dy,dz`` (w*: working frame, d*: destinati
 may omit ``wz,dz``). Rows sharing an id are repeated measurements of one fiducial: their mean is its
 location, their scatter gives sigma. TARGETS.csv: ``id,wx,wy,wz`` and optionally ``dx,dy,dz``
 (truth). Any consistent length unit. Extra columns are ignored; column order is free.
+
+Optional columns of FIDUCIALS.csv: ``group`` (fiducials that share an error, e.g. the reflectors
+of one robot pose: held out together, :mod:`~rbc_registration.core.groups`; empty: its own
+group) and ``session`` (the measuring session; an empty cell continues the row before's session,
+the first rows' is ``1``). With more than one session, every session's working points are mapped
+into the reference session's frame when it moved, or left out when it cannot be compared
+(:mod:`~rbc_registration.core.sessions`) before any other rule. TARGETS.csv may carry
+``session`` too (empty or absent: the reference session).
 """
 
 from __future__ import annotations
@@ -12,13 +20,14 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Union
+from typing import Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..core.constants import DIMENSIONS
 from ..core.repeats import repeat_outlier, typical_spacing
+from ..core.sessions import SessionPlan, estimate_sessions, session_cells
 from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.files import NotARegularFile, check_input_file
 from ..pipeline.targets import first_conflict, mean_by_id, rows_by_id
@@ -50,6 +59,11 @@ class FiducialTable:
     #: One line per row that was ignored (a working-frame repeat far from its siblings), and one
     #: for the rows dropped as a copied run of earlier rows (:func:`_copied_runs`).
     notes: tuple[str, ...] = ()
+    #: The ``group`` of each fiducial ('' its own), or ``None`` without the column.
+    groups: Optional[tuple[str, ...]] = None
+    #: The sessions and their motions (``None`` without a ``session`` column); the repeats are
+    #: already in the reference session's frame.
+    sessions: Optional[SessionPlan] = None
 
     @property
     def working(self) -> NDArray[np.float64]:
@@ -70,6 +84,8 @@ class TargetTable:
     working: NDArray[np.float64]
     destination: Optional[NDArray[np.float64]]
     counts: tuple[int, ...] = ()
+    #: The sessions the rows were measured in (those of a ``session`` column), in file order.
+    sessions: tuple[str, ...] = ()
 
 
 def _read_rows(path: PathLike, required: list[str]
@@ -205,14 +221,16 @@ def _dimension(p: PathLike, header: list[str], prefixes: list[str], dim: Optiona
 
 
 def read_fiducials(path: PathLike, dim: Optional[int] = None,
-                   outlier_distance: Optional[float] = None) -> FiducialTable:
+                   outlier_distance: Optional[float] = None,
+                   reference_sessions: Optional[Sequence[str]] = None) -> FiducialTable:
     """Read FIDUCIALS.csv (module docstring).
 
     Repeats of an id are checked in file order with the node's rule
     (:func:`~rbc_registration.core.repeats.repeat_outlier`): a row whose destination point is
     farther than the limit from the mean of the id's earlier rows is a conflict (two points, one
     id: the file is refused); a row whose working point is that far is ignored, with a note (the
-    node rejects such a measurement and keeps the others).
+    node rejects such a measurement and keeps the others). With a ``session`` column the rows are
+    re-stationed into the reference session first (:func:`_restation`).
 
     :param path: the file.
     :param dim: 2 or 3; ``None``: 3 when ``wz`` and ``dz`` exist, else 2. With 2, z is ignored.
@@ -220,20 +238,36 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
         ``CONFLICT_FRACTION`` x the typical fiducial spacing of each frame
         (:func:`~rbc_registration.core.repeats.typical_spacing` of the ids' first rows, so the
         ids under test and coinciding ids do not set it).
+    :param reference_sessions: the sessions the targets were measured in: the reference is the
+        latest of them (:func:`target_sessions`); ``None``: the latest session.
     :raises CsvError: naming the file, row and column of the first problem, including ids whose
-        repeated destination points conflict.
+        repeated destination points conflict, and one id in two groups.
     """
     header, rows = _read_rows(path, ["id", "wx", "wy", "dx", "dy"])
     d = _dimension(path, header, ["w", "d"], dim)
     axes = "xyz"[:d]
     parsed = []
+    labels: dict[str, str] = {}
+    sessions: dict[int, str] = {}
+    session = "1"
     for line, row in rows:
         fid = row.get("id") or ""
         if not fid:
             raise CsvError(f"{path}: row {line}: column id is empty")
         w = [_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes]
         t = [_number(path, line, f"d{a}", row.get(f"d{a}")) for a in axes]
+        group = row.get("group") or ""
+        if group:
+            if labels.setdefault(fid, group) != group:
+                raise CsvError(f"{path}: row {line}: id {fid!r} is in group {group!r} here and "
+                               f"in group {labels[fid]!r} in an earlier row: one fiducial, one "
+                               "group")
+        session = row.get("session") or session
+        sessions[line] = session
         parsed.append((line, fid, tuple(row.get(h) for h in header), w, t))
+    plan = None
+    if "session" in header:
+        plan, parsed = _restation(path, parsed, sessions, reference_sessions)
     copies = _copied_runs([(p[0], p[2]) for p in parsed])
     copied = {line for line, _ in copies}
     groups: dict[str, list[tuple[int, list[float], list[float]]]] = {}
@@ -243,6 +277,8 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
     limits = _repeat_limits([[g[0][1] for g in groups.values()],
                              [g[0][2] for g in groups.values()]], outlier_distance)
     notes: list[str] = []
+    if plan is not None and plan.warning():
+        notes.append(f"{path}: {plan.warning()}")
     if copies:
         shown = ", ".join(f"row {line} = row {first}" for line, first in copies[:3])
         more = f", and {len(copies) - 3} more" if len(copies) > 3 else ""
@@ -260,7 +296,47 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
         tilted = _dropped_z_note(rows, groups)
         if tilted:
             notes.append(f"{path}: {tilted}")
-    return FiducialTable(tuple(groups), tuple(work), tuple(dest), d, tuple(notes))
+    group_column = tuple(labels.get(fid, "") for fid in groups) if "group" in header else None
+    return FiducialTable(tuple(groups), tuple(work), tuple(dest), d, tuple(notes),
+                         group_column, plan)
+
+
+def _restation(path: PathLike, parsed: list, sessions: dict[int, str],
+               reference_sessions: Optional[Sequence[str]]) -> tuple[SessionPlan, list]:
+    """The session plan of the rows and the rows with their working points in the reference
+    session's frame; rows of a session kept apart are left out."""
+    labels = [sessions[p[0]] for p in parsed]
+    order = list(dict.fromkeys(labels))
+    reference = None
+    if reference_sessions:
+        unknown = [s for s in dict.fromkeys(reference_sessions) if s not in order]
+        if unknown:
+            raise CsvError(f"{path}: the targets' session(s) {', '.join(map(repr, unknown))} "
+                           f"are not among the fiducials' sessions {', '.join(order)}: targets "
+                           "can only be placed in a session the fiducials were measured in")
+        reference = [s for s in order if s in set(reference_sessions)][-1]
+    points = np.array([p[3] for p in parsed], dtype=np.float64)
+    plan = estimate_sessions(session_cells([p[1] for p in parsed], labels, points), reference)
+    moved, keep = plan.apply(points, labels)
+    rows = [(line, fid, raw, [float(v) for v in moved[k]], t)
+            for k, (line, fid, raw, _, t) in enumerate(parsed) if keep[k]]
+    return plan, rows
+
+
+def target_sessions(path: Optional[PathLike]) -> Optional[tuple[str, ...]]:
+    """The sessions of TARGETS.csv's ``session`` column (empty cells continue the row
+    before's), or ``None`` without a file or without the column."""
+    if path is None:
+        return None
+    header, rows = _read_rows(path, ["id"])
+    if "session" not in header:
+        return None
+    out, session = [], ""
+    for _, row in rows:
+        session = row.get("session") or session
+        if session:
+            out.append(session)
+    return tuple(out) or None
 
 
 def _dropped_z_note(rows: list, groups: dict) -> Optional[str]:
@@ -411,7 +487,8 @@ def _central_first(group: list[tuple[int, list[float], list[float]]]) -> list[in
 
 
 def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = None,
-                 kind: str = "target", fiducials: Optional[ArrayLike] = None) -> TargetTable:
+                 kind: str = "target", fiducials: Optional[ArrayLike] = None,
+                 sessions: Optional[SessionPlan] = None) -> TargetTable:
     """Read TARGETS.csv: ``id,wx,wy[,wz]`` and optionally ``dx,dy[,dz]`` (truth).
 
     Rows sharing an id are repeated measurements of one point and are averaged. A row farther
@@ -425,7 +502,11 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
         target id: its repeats still must agree).
     :param kind: what the ids are, named in messages (``target``, ``candidate``).
     :param fiducials: the fiducials' working-frame points (their spacing is that fallback).
-    :raises CsvError: naming the file, row and column of the first problem.
+    :param sessions: the fiducials' session plan (``FiducialTable.sessions``): rows of a
+        ``session`` column are mapped into its reference session's frame before they are
+        checked and averaged; rows without a session are in the reference session.
+    :raises CsvError: naming the file, row and column of the first problem, and a session the
+        fiducials do not have or left out.
     """
     header, rows = _read_rows(path, ["id", "wx", "wy"] + (["wz"] if dim == 3 else []))
     axes = "xyz"[:dim]
@@ -444,6 +525,10 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
         if has_truth:
             truth.append(_truth(path, line, row, axes))
     lines = [line for line, _ in rows]
+    row_sessions = _target_row_sessions(path, header, rows, sessions)
+    if row_sessions:
+        moved, _ = sessions.apply(work, row_sessions)
+        work = moved.tolist()
     known = [k for k, t in enumerate(truth) if not math.isnan(t[0])]   # rows with truth
     named = [("working", list(range(len(tids))), work)] + (
         [("truth", known, truth)] if known else [])
@@ -460,14 +545,39 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
                            f"conflicting {frame} points: row {lines[row]}: {conflict.message}")
     ids, (means,) = mean_by_id(tids, work)
     counts = tuple(len(index) for index in rows_by_id(tids).values())
+    seen = tuple(dict.fromkeys(row_sessions))
     if not known:
-        return TargetTable(ids, means, None, counts)
+        return TargetTable(ids, means, None, counts, seen)
     # an id's truth: the mean of its rows with truth (NaN: none has; a target without truth)
     with_ids, (truth_means,) = mean_by_id([tids[k] for k in known], [truth[k] for k in known])
     destination = np.full_like(means, np.nan)
     position = {t: k for k, t in enumerate(ids)}
     destination[[position[t] for t in with_ids]] = truth_means
-    return TargetTable(ids, means, destination, counts)
+    return TargetTable(ids, means, destination, counts, seen)
+
+
+def _target_row_sessions(path: PathLike, header: list[str], rows: list,
+                         plan: Optional[SessionPlan]) -> list[str]:
+    """Each target row's session (empty cells continue the row before's; the reference session
+    where none is given), [] without a ``session`` column."""
+    if "session" not in header:
+        return []
+    if plan is None:
+        raise CsvError(f"{path}: has a session column but the fiducials have none: give the "
+                       "fiducials' sessions too, or drop the column")
+    out, session = [], plan.reference
+    for line, row in rows:
+        session = row.get("session") or session
+        try:
+            motion = plan.motion(session)
+        except KeyError:
+            raise CsvError(f"{path}: row {line}: session {session!r} is not among the "
+                           f"fiducials' sessions") from None
+        if motion.kept_apart:
+            raise CsvError(f"{path}: row {line}: session {session!r} was kept apart (too few "
+                           "fiducials in common with the others): its targets cannot be placed")
+        out.append(session)
+    return out
 
 
 def _truth(path: PathLike, line: int, row: dict[str, str], axes: str) -> list[float]:

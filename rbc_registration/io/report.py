@@ -133,7 +133,9 @@ def decision_lines(decision: dict[str, Any], unit: str) -> list[str]:
     """The decision of a report (its ``decision`` object) as text lines: mode, method, reason,
     and each candidate's cross-validated error."""
     folds = decision["folds"]
-    kind = (f"{folds['kind']}, {folds['n_folds']} folds" if folds["n_folds"] else folds["kind"])
+    name = ("leave-one-group-out" if folds.get("grouped") and folds["kind"] == "leave-one-out"
+            else folds["kind"] + (" of whole groups" if folds.get("grouped") else ""))
+    kind = f"{name}, {folds['n_folds']} folds" if folds["n_folds"] else name
     lines = [f"  decision     {decision['mode']} -> {decision['method']} (corrections "
              f"{'applied' if decision['apply'] else 'not applied'}"
              f"{'' if decision['confident'] else '; uncertain'})",

@@ -10,12 +10,10 @@ from typing import Optional
 import numpy as np
 
 from ..core.accumulator import FiducialSet
-from ..core.evaluation import blunders, describe_blunders, describe_misfits, gross_misfits
+from ..core.evaluation import describe_misfits, gross_misfits
 from ..core.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
-from ..core.noise import identical_repeats, scattered_repeats
-from ..core.repeats import describe_twins, twin_groups
-from ..core.scale import rigidity_warnings
+from ..core.warnings import model_warnings
 from .settings import Settings
 
 
@@ -112,12 +110,7 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
     # The status and the snapshot report every sigma_L (computed on first access, O(J^2)): here,
     # in the recompute thread, rather than on the executor at the first status.
     _ = model.restoration.sigma_l
-    twins = describe_twins(model.ids, model.working,
-                           twin_groups(model.working, model.destination), "m")
-    warning = "; ".join(filter(None, (left_out, *rigidity_warnings(model, "m"),
-                                      scattered_repeats(model.ids, model.repeat_stats, "m"),
-                                      identical_repeats(model.repeat_stats, model.sigma_source),
-                                      describe_blunders(blunders(model), "m"), twins)))
+    warning = "; ".join(filter(None, (left_out, *model_warnings(model, "m"))))
     return ModelState(model, fiducials, settings, "", stamp_ns, warning)
 
 

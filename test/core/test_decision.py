@@ -148,7 +148,7 @@ def test_record_is_json_ready():
     doc = json.loads(json.dumps(dec.to_dict(), allow_nan=False))
     assert set(doc) == {"mode", "apply", "method", "reason", "confident", "significance",
                         "folds", "rho", "rho_recommendation", "bound_level", "cv"}
-    assert doc["folds"] == {"kind": "leave-one-out", "n_folds": 60}
+    assert doc["folds"] == {"kind": "leave-one-out", "n_folds": 60, "grouped": False}
     assert set(doc["cv"]) == {"uncorrected", "paper", "kriging"}
     assert doc["cv"]["uncorrected"]["p_value"] is None
 
