@@ -211,7 +211,8 @@ def estimate_sessions(cells: dict[str, dict[str, tuple[NDArray[np.float64], int]
 
     :param cells: per session (in order of first appearance), per fiducial id: (mean working
         point (d,), number of measurements); :func:`session_cells` builds it from rows.
-    :param reference: the session the others are mapped into; default the latest (last key).
+    :param reference: the session the others are mapped into; default the latest (last key),
+        or when the latest shares too few fiducials with every other, the latest that does.
     :param significance: the F test's level.
     :return: :class:`SessionPlan`.
     :raises ValueError: for no sessions or an unknown reference.
@@ -219,9 +220,31 @@ def estimate_sessions(cells: dict[str, dict[str, tuple[NDArray[np.float64], int]
     names = list(cells)
     if not names:
         raise ValueError("no sessions")
-    ref = names[-1] if reference is None else reference
-    if ref not in cells:
-        raise ValueError(f"reference session {ref!r} is not among the sessions {names}")
+    if reference is not None:
+        if reference not in cells:
+            raise ValueError(f"reference session {reference!r} is not among the sessions "
+                             f"{names}")
+        return _join(cells, reference, significance)
+    # the latest session, unless another reference keeps more measurements (the latest shares
+    # too few fiducials with the others): then the latest of those that keep the most
+    best: Optional[SessionPlan] = None
+    for ref in reversed(names):
+        plan = _join(cells, ref, significance)
+        if best is None or _kept(plan) > _kept(best):
+            best = plan
+        if not plan.kept_apart:
+            break
+    return best
+
+
+def _kept(plan: SessionPlan) -> int:
+    return sum(m.n_measurements for m in plan.motions if not m.kept_apart)
+
+
+def _join(cells: dict[str, dict[str, tuple[NDArray[np.float64], int]]], ref: str,
+          significance: float) -> SessionPlan:
+    """The plan with reference ``ref`` (module docstring)."""
+    names = list(cells)
     d = len(next(iter(cells[ref].values()))[0])
     anchor = {f: (m * n, n) for f, (m, n) in cells[ref].items()}
     motions = {ref: SessionMotion(ref, sum(n for _, n in cells[ref].values()),
