@@ -476,3 +476,25 @@ def test_z_that_is_no_tilt_is_not_named(tmp_path, case):
                    for k in range(40))
     notes = read_fiducials(write(tmp_path, H3 + rows), dim=2).notes
     assert not [n for n in notes if "read in 2D" in n], notes
+
+
+def test_target_sessions_need_fiducial_sessions(tmp_path):
+    from rbc_registration.io.csv_io import CsvError, read_fiducials, read_targets
+    f = tmp_path / "f.csv"
+    f.write_text("id,wx,wy,dx,dy\na,0,0,0,0\nb,1,0,1,0\nc,0,1,0,1\nd,1,1,1,1\n")
+    t = tmp_path / "t.csv"
+    t.write_text("id,session,wx,wy\nT,s1,0.5,0.5\n")
+    fid = read_fiducials(f)
+    with pytest.raises(CsvError, match="has a session column but the fiducials have none"):
+        read_targets(t, 2, sessions=fid.sessions)
+
+
+def test_empty_session_cells_continue_the_row_before(tmp_path):
+    from rbc_registration.io.csv_io import read_fiducials
+    f = tmp_path / "f.csv"
+    f.write_text("id,session,wx,wy,dx,dy\na,,0,0,0,0\nb,,1,0,1,0\nc,,0,1,0,1\n"
+                 "d,later,1,1,1,1\na,,0,0,0,0\nb,,1,0,1,0\nc,,0,1,0,1\n")
+    fid = read_fiducials(f)
+    assert [m.session for m in fid.sessions.motions] == ["1", "later"]
+    assert fid.sessions.reference == "later"
+    assert [len(r) for r in fid.working_repeats] == [2, 2, 2, 1]
