@@ -13,7 +13,8 @@ from typing import Any, Callable, Mapping, NamedTuple, Optional, Sequence
 
 from ..core.accumulator import (FiducialAccumulator, FiducialSet, Measurement, Record,
                                 RejectedMeasurement)
-from ..core.pairing import PointPair, StampPairer
+from ..core.constants import DESTINATION, WORKING
+from ..core.pairing import DroppedPoint, PointPair, StampPairer
 from ..core.scale import dropped_z_warning
 from .journal import Journal
 from .residuals import FiducialSummary
@@ -40,6 +41,23 @@ def repeated_stamps(stream: str, stamp_s: float) -> str:
     return (f"{stream} point stamps repeat ({stamp_s:.9f} s twice in a row): pairing by stamp "
             "then goes by arrival order, and one lost message pairs every later point wrongly; "
             "stamp each measurement, or publish FiducialPair")
+
+
+def _point_key(xyz: Any, stamp_s: float) -> Optional[tuple[tuple[float, ...], float]]:
+    """A point as the pairer keeps it (coordinates, stamp), to compare; ``None`` if unusable."""
+    try:
+        return tuple(float(v) for v in xyz), float(stamp_s)
+    except (TypeError, ValueError):
+        return None
+
+
+class _Held(NamedTuple):
+    """A rejection from the pairing held back while ``~/take_sample`` may record its point."""
+
+    key: tuple[tuple[float, ...], float]
+    reason: str
+    message: str
+    received_s: float
 
 
 #: The :attr:`_Outcome.reason` of a valid measurement the journal could not write.
@@ -76,12 +94,16 @@ class Ingest:
     :param clock: the time now [s] (the node clock) for the accumulator's ``max_stamp_age``
         check; ``None``: stamps are not checked against a clock (offline evaluation).
     :param log_clock: monotonic seconds, for the rate limit of rejection log lines.
+    :param hold_s: how long [s, on ``clock``] a point dropped from the pairing while it is the
+        latest point of its stream is held back before it counts as rejected
+        (``sample_max_age`` in point_mode pair, as ``~/take_sample`` may still record it); 0:
+        counted at once.
     """
 
     def __init__(self, accumulator: FiducialAccumulator, pairer: StampPairer,
                  journal: Optional[Journal], logger: Any,
                  clock: Optional[Callable[[], float]] = None,
-                 log_clock: Callable[[], float] = time.monotonic) -> None:
+                 log_clock: Callable[[], float] = time.monotonic, hold_s: float = 0.0) -> None:
         self._acc = accumulator
         self._pairer = pairer
         self._journal = journal
@@ -100,6 +122,12 @@ class Ingest:
         # In 2D: the 3D points of each fiducial's first measurement accepted by this process
         # (the accumulator and the journal keep x, y only), for dropped_z_warning.
         self._first_xyz: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}
+        self.hold_s = hold_s
+        # Per stream: the latest point and when it arrived, its held-back rejection, and the
+        # point ~/take_sample recorded last (never counted as rejected).
+        self._latest_point: dict[str, tuple[Any, float]] = {}
+        self._held: dict[str, _Held] = {}
+        self._sampled: dict[str, Any] = {}
 
     def restore(self) -> int:
         """Replay the journal (if any) into the accumulator; return the measurements restored.
@@ -196,16 +224,19 @@ class Ingest:
             ``~/take_sample`` does not record their points again).
         """
         with self._lock:
+            key = _point_key(xyz, stamp_s)
+            held = self._held.get(stream)
+            if held is not None and held.key != key:    # a newer point: it can't be sampled
+                self._release_locked(stream)
+            self._release_expired_locked()
+            self._latest_point[stream] = (key, self._clock() if self._clock else 0.0)
             try:
                 result = self._pairer.add(stream, xyz, frame_id, stamp_s)
             except ValueError as exc:
                 self._rejected(self._acc.reject("malformed", str(exc)))
                 return []
             for dropped in result.dropped:
-                reason = ("ambiguous" if dropped.ambiguous else
-                          "duplicate" if dropped.duplicate else "malformed")
-                self._rejected(self._acc.reject(reason, f"unpaired {dropped.stream} point "
-                                                f"dropped: {dropped.reason}"))
+                self._dropped_locked(dropped)
             if result.repeated and stream not in self.stamp_warnings:
                 self.stamp_warnings[stream] = repeated_stamps(stream, stamp_s)
                 self._log.warning(self.stamp_warnings[stream])
@@ -220,6 +251,51 @@ class Ingest:
                                              or outcome.reason == "duplicate"):
                     recorded.append(pair)
             return accepted
+
+    def _dropped_locked(self, dropped: DroppedPoint) -> None:
+        """Count a point the pairing dropped; not the point ``~/take_sample`` recorded last,
+        and, while ``~/take_sample`` may still record it (the latest point of its stream,
+        within :attr:`hold_s`), held back (:meth:`_release_locked`)."""
+        reason = ("ambiguous" if dropped.ambiguous else
+                  "duplicate" if dropped.duplicate else "malformed")
+        message = f"unpaired {dropped.stream} point dropped: {dropped.reason}"
+        key = _point_key(dropped.point.xyz, dropped.point.stamp_s)
+        if self._sampled.get(dropped.stream) == key:
+            return
+        latest = self._latest_point.get(dropped.stream)
+        if (self.hold_s > 0 and self._clock is not None and not dropped.duplicate
+                and latest is not None and latest[0] == key):
+            self._held[dropped.stream] = _Held(key, reason, message, latest[1])
+            return
+        self._rejected(self._acc.reject(reason, message))
+
+    def _release_locked(self, stream: str) -> None:
+        """Count the held-back rejection of ``stream``."""
+        held = self._held.pop(stream)
+        self._rejected(self._acc.reject(held.reason, held.message))
+
+    def _release_expired_locked(self) -> None:
+        """Count the held-back rejections older than :attr:`hold_s` (``~/take_sample`` calls
+        their points stale)."""
+        if not self._held or self._clock is None:
+            return
+        now = self._clock()
+        for stream in [s for s, h in self._held.items() if now - h.received_s > self.hold_s]:
+            self._release_locked(stream)
+
+    def sampled(self, working_xyz: Any, working_stamp_s: float, destination_xyz: Any,
+                destination_stamp_s: float) -> None:
+        """``~/take_sample`` recorded these points (point_mode pair): neither is counted as
+        rejected by the pairing (a held-back rejection is forgotten, a later drop not
+        counted), and the working point leaves the pairing, so that its stamp partner
+        arriving later does not record it again."""
+        with self._lock:
+            for stream, key in ((WORKING, _point_key(working_xyz, working_stamp_s)),
+                                (DESTINATION, _point_key(destination_xyz, destination_stamp_s))):
+                self._sampled[stream] = key
+                if stream in self._held and self._held[stream].key == key:
+                    del self._held[stream]
+            self._pairer.discard(WORKING, working_xyz, working_stamp_s)
 
     def discard_point(self, stream: str, xyz: Any, stamp_s: float) -> bool:
         """Drop a buffered, unpaired point recorded otherwise (``~/take_sample`` in point_mode
@@ -255,6 +331,9 @@ class Ingest:
                                    f"failed: {exc}")
             self._acc.clear()
             self._pairer.clear()
+            self._latest_point.clear()
+            self._held.clear()
+            self._sampled.clear()
             self._first_xyz.clear()
             self.first_rejections.clear()
             self.n_journal_failures = 0
@@ -271,6 +350,7 @@ class Ingest:
             self._acc.merge_radius = settings.merge_radius
             self._acc.outlier_distance = settings.outlier_distance
             self._acc.max_stamp_age = settings.max_stamp_age
+            self.hold_s = settings.sample_max_age if settings.point_mode == "pair" else 0.0
 
     def fiducial_set(self) -> FiducialSet:
         """The enabled fiducials now (for a model rebuild)."""
@@ -303,8 +383,10 @@ class Ingest:
                     in self._acc.state_digest()]
 
     def counters(self) -> Counters:
-        """Measurement and rejection counters now."""
+        """Measurement and rejection counters now (held-back rejections older than
+        :attr:`hold_s` count from here)."""
         with self._lock:
+            self._release_expired_locked()
             return Counters(self._acc.n_measurements, dict(self._acc.rejected),
                             self._acc.n_disabled, self.n_journal_failures, self.journal_error,
                             self.n_replay_skipped)

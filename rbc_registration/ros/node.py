@@ -141,7 +141,8 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
                                                         "dimension": s.dimension},
                                           fsync=s.journal_fsync)
         self._ingest = Ingest(accumulator, StampPairer(s.pair_slop, s.point_buffer), journal,
-                              self.get_logger(), lambda: self.get_clock().now().nanoseconds * 1e-9)
+                              self.get_logger(), lambda: self.get_clock().now().nanoseconds * 1e-9,
+                              hold_s=s.sample_max_age if s.point_mode == "pair" else 0.0)
         restored = self._ingest.restore()
 
         self._tf = StaticTf(self)

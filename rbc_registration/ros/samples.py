@@ -44,6 +44,14 @@ class Latest(NamedTuple):
     sampled: bool = False       # recorded already by a ~/take_sample
 
 
+class Taken(NamedTuple):
+    """What a sample is taken from: the latest working point and the destination point's
+    stamp [s] (the pair's stamp is the working point's)."""
+
+    working: Optional[Latest]
+    destination_stamp_s: float
+
+
 def _same_point(a: PointStamped, b: PointStamped) -> bool:
     """Whether two points have the same coordinates, frame and stamp."""
     return ((a.point.x, a.point.y, a.point.z, a.header.frame_id, a.header.stamp.sec,
@@ -94,12 +102,12 @@ class SampleTaker:
                     self._latest[stream] = latest._replace(paired=True)
 
     def mark_sampled(self, taken: Any) -> None:
-        """A ``~/take_sample`` recorded the working point ``taken`` (the token :meth:`pair`
-        returned): while no newer ``~/working_point`` arrived, another sample would record the
-        same measurement again."""
+        """A ``~/take_sample`` recorded the working point of ``taken`` (the :class:`Taken`
+        :meth:`pair` returned): while no newer ``~/working_point`` arrived, another sample
+        would record the same measurement again."""
         with self._lock:
             latest = self._latest.get(WORKING)
-            if latest is not None and latest is taken:
+            if latest is not None and latest is taken.working:
                 self._latest[WORKING] = latest._replace(sampled=True)
 
     def _point(self, stream: str, topic: str, settings: Settings, now_ns: int) -> Any:
@@ -142,8 +150,8 @@ class SampleTaker:
     def pair(self, fiducial_id: str, settings: Settings
              ) -> tuple[Optional[PairArgs], str, Any]:
         """The measurement to record now: ``(PairArgs, "", token)``, or ``(None, why not,
-        None)`` naming the missing, stale or already recorded point. Once the pair is recorded,
-        pass ``token`` to :meth:`mark_sampled`.
+        None)`` naming the missing, stale or already recorded point; ``token`` is a
+        :class:`Taken`. Once the pair is recorded, pass it to :meth:`mark_sampled`.
 
         :raises RejectedMeasurement: ``malformed`` when a point's stamp is not a time (the caller
             counts it as every rejected measurement is counted).
@@ -169,9 +177,10 @@ class SampleTaker:
         errors = [p for p in (working, destination) if isinstance(p, str)]
         if errors:
             return None, "; ".join(errors), None
-        (w, w_frame, stamp), (d, d_frame, _) = (conv.point_stamped_to_tuple(working),
-                                                conv.point_stamped_to_tuple(destination))
-        return PairArgs(fiducial_id or None, w, d, w_frame, d_frame, stamp), "", latest
+        (w, w_frame, stamp), (d, d_frame, d_stamp) = (conv.point_stamped_to_tuple(working),
+                                                      conv.point_stamped_to_tuple(destination))
+        return (PairArgs(fiducial_id or None, w, d, w_frame, d_frame, stamp), "",
+                Taken(latest, d_stamp))
 
 
 def pair_message(record: Any, args: PairArgs, settings: Settings) -> FiducialPair:

@@ -16,7 +16,6 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetF
 
 import re
 
-from ..core.constants import WORKING
 from ..core.records import RejectedMeasurement
 from ..core.scale import unit_mismatch
 from ..pipeline.residuals import fiducial_residuals
@@ -188,8 +187,9 @@ class ServicesMixin:
                         response: TakeSample.Response) -> TakeSample.Response:
         try:
             args, error, taken = self._samples.pair(request.fiducial_id, self._settings)
-        except RejectedMeasurement as exc:      # a point's stamp is not a time: counted
-            self._ingest.reject(exc)
+        except RejectedMeasurement as exc:      # a point's stamp is not a time: counted once
+            if self._settings.point_mode != "pair":     # pair: its topic callback counted it
+                self._ingest.reject(exc)
             args, error, taken = None, f"rejected ({exc.reason}): {exc.message}", None
         record = None
         if args is not None:
@@ -198,8 +198,9 @@ class ServicesMixin:
             response.success, response.message = False, f"no sample taken: {error}"
             return response
         self._samples.mark_sampled(taken)   # no second sample of the same measurement
-        if self._settings.point_mode == "pair":   # not again when its stamp partner arrives
-            self._ingest.discard_point(WORKING, args.working_xyz, args.stamp_s)
+        if self._settings.point_mode == "pair":   # never rejected, nor recorded again, by pairing
+            self._ingest.sampled(args.working_xyz, args.stamp_s, args.destination_xyz,
+                                 taken.destination_stamp_s)
         self._measurements_changed()
         response.pair = samples.pair_message(record, args, self._settings)
         response.success = True

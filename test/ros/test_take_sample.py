@@ -165,6 +165,55 @@ class TestTakeSample(NodeTestBase):
                  what="the partner buffered")
         assert node.status().n_measurements == 1
 
+    def test_its_own_points_are_never_counted_as_rejected(self):
+        """Pair mode, points stamped far apart (a tracker and a robot measuring one hole a few
+        seconds apart): the destination point made the working point stale, and the working
+        point sampled next made the destination point stale. Both were counted and logged as
+        rejected (malformed) although ~/take_sample recorded them, and /diagnostics said WARN.
+        A dropped point nobody samples is still counted, once a newer point of its stream
+        arrives."""
+        node = self.make_node(sample_max_age=60.0)
+        self.send(node, "working_point", self.cell["working"][0], "tracker", stamp=1.0)
+        self.send(node, "destination_point", self.cell["destination"][0], "world", stamp=5.0)
+        r = self.take(node, "H1")
+        assert r.success, r.message
+        self.send(node, "working_point", self.cell["working"][0] + 1e-5, "tracker", stamp=9.0)
+        r = self.take(node, "H1")      # the same destination point, a new working point
+        assert r.success, r.message
+        s = node.status()
+        assert (s.n_measurements, s.n_rejected) == (2, 0), (s.n_measurements, s.n_rejected)
+        # Points nobody samples: the working point at 40 is dropped when the destination point
+        # at 50 arrives, and counted when the next working point replaces it.
+        self.send(node, "working_point", self.cell["working"][1], "tracker", stamp=40.0)
+        self.send(node, "destination_point", self.cell["destination"][1], "world", stamp=50.0)
+        self.send(node, "working_point", self.cell["working"][2], "tracker", stamp=60.0)
+        wait_for(lambda: node.status().n_rejected_malformed == 1, what="the unsampled point")
+        assert node.status().n_measurements == 2
+
+    def test_an_unsampled_dropped_point_counts_once_sample_max_age_passes(self):
+        node = self.make_node(sample_max_age=0.2)
+        self.send(node, "working_point", self.cell["working"][0], "tracker", stamp=1.0)
+        self.send(node, "destination_point", self.cell["destination"][0], "world", stamp=5.0)
+        wait_for(lambda: node.status().n_rejected_malformed == 1, what="the dropped point")
+        r = self.take(node, "H1")
+        assert not r.success and "the latest ~/working_point is stale" in r.message
+        assert node.status().n_rejected == 1
+
+    def test_pair_mode_counts_a_point_whose_stamp_is_not_a_time_once(self):
+        """Pair mode: the topic callback counted the point, and ~/take_sample counted it
+        again."""
+        node = self.make_node(sample_max_age=60.0)
+        self.send(node, "destination_point", self.cell["destination"][0], "world")
+        pub = self.publisher(node, PointStamped, "working_point")
+        msg = _point(self.cell["working"][0], "tracker")
+        msg.header.stamp.nanosec = 2_000_000_000
+        pub.publish(msg)
+        wait_for(lambda: node.status().n_rejected_malformed == 1, what="the bad stamp counted")
+        self.ros.client.destroy_publisher(pub)
+        r = self.take(node, "H00")
+        assert not r.success and "rejected (malformed)" in r.message
+        assert node.status().n_rejected_malformed == 1
+
     @pytest.mark.skipif(not samples.TF2_ROS_MISSING, reason="tf2_ros is installed")
     def test_tf_source_is_refused_without_tf2_ros(self):
         node = self.make_node()
