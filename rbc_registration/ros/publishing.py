@@ -125,8 +125,8 @@ class PublishingMixin:
                                loaded.describe() if loaded is not None else "", state.warning,
                                self.get_clock().ros_time_is_active)
             self._pub_status.publish(status)
-            self._pub_diagnostics.publish(diagnostics_msg(status, self.get_name(),
-                                                          status.header.stamp, health))
+            self._pub_diagnostics.publish(diagnostics_msg(
+                status, self.get_fully_qualified_name(), status.header.stamp, health))
 
     def _save(self, item: tuple[ModelState, int]) -> str:
         """Write the snapshot of ``(state, generation)`` unless ``~/reset`` came since."""

@@ -120,7 +120,10 @@ NO_CLOCK = ("use_sim_time is true and no /clock message has arrived: stamps are 
 def diagnostics_msg(status: RegistrationStatus, node_name: str, now: Time,
                     health: Health) -> DiagnosticArray:
     """``/diagnostics``: one status at the ``health`` level (:func:`health_of`), its reason in
-    the message, the status' numbers and the decision as key/values."""
+    the message, the status' numbers and the decision as key/values. The status is named
+    ``<node_name>: registration`` (diagnostic_updater's ``<node name>: <task>``), with
+    ``node_name`` the fully qualified name (``/cell_a/registration_node``), so that two cells'
+    nodes of one name in different namespaces are told apart."""
     d = DiagnosticStatus(name=f"{node_name}: registration",
                          hardware_id=f"{status.working_frame_id}->{status.destination_frame_id}")
     d.level, d.message = DIAGNOSTIC_LEVEL[health.level], health.message

@@ -204,7 +204,8 @@ class TestFaults(RosTestBase):
             assert error in status.message
 
             def journal_error():
-                return [s for d in diagnostics for s in d.status if s.name.startswith(name)
+                return [s for d in diagnostics for s in d.status
+                        if s.name == f"/{name}: registration"
                         and s.level == DiagnosticStatus.ERROR and error in s.message]
             wait_for(journal_error, 30, "/diagnostics ERROR")
 

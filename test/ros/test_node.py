@@ -195,9 +195,10 @@ class TestLiveRegistration(NodeTestBase):
         arrow = [m for m in markers.markers if m.ns.endswith("corrections")][0]
         length = np.linalg.norm(point_xyz(arrow.points[1]) - point_xyz(arrow.points[0]))
         assert length > 0.01   # ~1 mm corrections drawn 100x longer: visible
+        name = f"{node.get_fully_qualified_name()}: registration"   # /<name>: registration
         diag = self.latest(node, DiagnosticArray, "/diagnostics", qos=10, predicate=lambda m: any(
-            s.name.startswith(node.get_name()) for s in m.status))
-        status = [s for s in diag.status if s.name.startswith(node.get_name())][0]
+            s.name == name for s in m.status))
+        status = [s for s in diag.status if s.name == name][0]
         assert status.level == DiagnosticStatus.OK, status.message
 
     def test_points_paired_by_stamp_get_ids_by_proximity(self):

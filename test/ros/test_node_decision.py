@@ -27,7 +27,7 @@ class TestDecisionInStatusAndDiagnostics(NodeTestBase):
         """The newest /diagnostics status of ``node`` satisfying ``predicate``: among ``got``
         (messages an earlier :meth:`watch` collects and keeps collecting), else from a new
         subscription."""
-        name = node.get_name()
+        name = f"{node.get_fully_qualified_name()}: "
         own = got is None
         if own:
             got, sub = TestDecisionInStatusAndDiagnostics.watch(self)

@@ -22,12 +22,13 @@ def test_every_rejection_counter_is_a_diagnostics_key_with_its_value():
     for k, field in enumerate(COUNTERS):
         setattr(status, field, 11 + k)
     status.n_rejected = sum(11 + k for k in range(len(COUNTERS)))
-    msg = diagnostics_msg(status, "registration_node", Time(sec=5),
+    msg = diagnostics_msg(status, "/cell_a/registration_node", Time(sec=5),
                           Health(Level.WARN, "measurements rejected"))
     (d,) = msg.status
     values = {kv.key: kv.value for kv in d.values}
     assert {f: values[f] for f in COUNTERS} == {f: str(11 + k) for k, f in enumerate(COUNTERS)}
     assert values["n_rejected"] == str(status.n_rejected)
     assert (d.level, d.message) == (DIAGNOSTIC_LEVEL[Level.WARN], "measurements rejected")
-    assert (d.name, d.hardware_id) == ("registration_node: registration", "tracker->world")
+    assert (d.name, d.hardware_id) == ("/cell_a/registration_node: registration",
+                                     "tracker->world")
     assert msg.header.stamp.sec == 5

@@ -12,6 +12,7 @@ import pytest
 pytest.importorskip("rclpy")
 TFMessage = pytest.importorskip("tf2_msgs.msg").TFMessage
 
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import TransformStamped  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -100,6 +101,15 @@ def test_two_namespaced_nodes_register_two_cells_each_in_its_own_state_dir(tmp_p
         assert np.abs(got["cell_a"] - got["cell_b"]).max() > 0.1  # two different registrations
         assert sorted(os.listdir(ros_home / "rbc_registration")) == [f"cell_a.{NAME}",
                                                                      f"cell_b.{NAME}"]
+
+        # /diagnostics: one status per node, named by its fully qualified name.
+        names = set()
+        sub = client.create_subscription(DiagnosticArray, "/diagnostics", lambda m: names.update(
+            s.name for s in m.status), 10)
+        want = {f"/{ns}/{NAME}: registration" for ns in cells}
+        wait_for(lambda: want <= names, timeout=30, what=f"{want} on /diagnostics")
+        client.destroy_subscription(sub)
+        assert f"{NAME}: registration" not in names
 
         # A late joiner of /tf_static (another process) gets both nodes' latched entries.
         entries = {}
