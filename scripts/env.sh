@@ -7,8 +7,10 @@
 #   rbc_registration_interfaces and rbc_registration (for ament_index_python look-ups such as
 #   get_package_share_directory('rbc_registration')). A pip venv does not set it by itself.
 # - DDS stays on this machine: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and no static peers.
-# - ROS_DOMAIN_ID: kept if set, else one derived from this shell's PID (1..101), so two shells
-#   running nodes or tests at once do not see each other. test/conftest.py picks its own per process.
+# - ROS_DOMAIN_ID: kept if you set it, else one derived from this shell's PID (1..101), so two
+#   shells running nodes or tests at once do not see each other; the value chosen is recorded in
+#   RBC_CHOSEN_ROS_DOMAIN_ID, so that a ROS_DOMAIN_ID equal to it is not taken for yours (a second
+#   source, scripts/test.sh, test/conftest.py choose their own per process).
 if [ -n "${BASH_SOURCE:-}" ]; then
   _rbc_here="${BASH_SOURCE[0]}"
 elif [ -n "${ZSH_VERSION:-}" ]; then
@@ -32,5 +34,8 @@ unset _ROS_WHEELS_BOOTSTRAP_COMPLETE PYTHONPATH
 export RMW_IMPLEMENTATION=rmw_fastrtps_cpp
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 unset ROS_STATIC_PEERS ROS_LOCALHOST_ONLY
-export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $$ % 101 + 1 ))}"
+if [ -z "${ROS_DOMAIN_ID:-}" ] || [ "$ROS_DOMAIN_ID" = "${RBC_CHOSEN_ROS_DOMAIN_ID:-}" ]; then
+  export ROS_DOMAIN_ID="$(( $$ % 101 + 1 ))" RBC_CHOSEN_ROS_DOMAIN_ID="$(( $$ % 101 + 1 ))"
+fi
+export ROS_DOMAIN_ID
 unset _rbc_here _rbc_root

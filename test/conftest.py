@@ -37,11 +37,25 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
 os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in favour of the range above
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-# One domain per test process (1..101: higher ids give Fast DDS ports beyond the usual
-# ephemeral-port floor), so concurrent runs of the suite, or xdist workers, never talk to each
-# other.
-ROS_DOMAIN_ID = os.getpid() % 101 + 1
-os.environ['ROS_DOMAIN_ID'] = str(ROS_DOMAIN_ID)
+# The ROS domain: the one the user set, else one per test process (1..101: higher ids give Fast
+# DDS ports beyond the usual ephemeral-port floor), so concurrent runs of the suite, or xdist
+# workers, never talk to each other. A ROS_DOMAIN_ID equal to CHOSEN_DOMAIN_VAR was chosen so by
+# scripts/env.sh or a parent test process, not by the user: this process chooses its own.
+CHOSEN_DOMAIN_VAR = 'RBC_CHOSEN_ROS_DOMAIN_ID'
+
+
+def choose_domain_id(environ, pid):
+    """The ROS domain of a test process with environment ``environ`` and process id ``pid``:
+    ``ROS_DOMAIN_ID`` when the user set it, else ``pid % 101 + 1``; sets both variables."""
+    user = environ.get('ROS_DOMAIN_ID', '').strip()
+    if user and user != environ.get(CHOSEN_DOMAIN_VAR):
+        return int(user)
+    domain = pid % 101 + 1
+    environ['ROS_DOMAIN_ID'] = environ[CHOSEN_DOMAIN_VAR] = str(domain)
+    return domain
+
+
+ROS_DOMAIN_ID = choose_domain_id(os.environ, os.getpid())
 # ROS_HOME of this test process and its children: ROS logs and the nodes' default state_dir
 # ($ROS_HOME/rbc_registration/...) go to a directory of this run, never to the user's ~/.ros.
 os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='rbc_test_ros_home_')

@@ -85,7 +85,7 @@ def wait_for(predicate: Callable[[], bool], timeout: float = 10.0, what: str = "
 
 
 def domain_id() -> int:
-    """The ROS domain of this test process (set by test/conftest.py)."""
+    """The ROS domain of this test process (the user's, or chosen by test/conftest.py)."""
     return int(os.environ.get("ROS_DOMAIN_ID", "0"))
 
 
