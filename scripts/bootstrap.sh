@@ -6,7 +6,10 @@
 #   3. the ROS interface packages not on PyPI, each built with cmake and installed INTO the venv
 #      prefix (libraries in .venv/lib, Python modules in .venv/lib/python3.11/site-packages):
 #      vendor/tf2_msgs (ros2/geometry2's tf2_msgs) and msg_docs/rbc_registration_interfaces;
-#   4. `pip install -e .` of rbc_registration.
+#   4. `pip install -e .` of rbc_registration, with the install layout of a colcon install
+#      mirrored as symlinks: share/rbc_registration (package.xml, launch/, config/), the ament
+#      index marker, and the console scripts in lib/rbc_registration/ (setup.cfg's
+#      install_scripts), where `ros2 run` and launch_ros look executables up.
 # Each step is skipped while a stamp keyed on a hash of its inputs matches, so a second run takes
 # about a second.
 #
@@ -29,7 +32,7 @@ FREEZE=0
 for arg in "$@"; do
   case "$arg" in
     --freeze) FREEZE=1 ;;
-    -h|--help) sed -n '2,20p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,23p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bootstrap: unknown argument: $arg" >&2; exit 2 ;;
   esac
 done
@@ -116,12 +119,25 @@ check_imports() {
   "$VPY" -c 'import rclpy, numpy, scipy, rosbags, yaml
 import rbc_registration' >/dev/null 2>&1 && [ -x "$VENV/bin/rbc-registration" ]
 }
+# The console scripts of rbc_registration (setup.py's entry points) and whether each one is in
+# <venv>/lib/rbc_registration/, as `ros2 run` / launch_ros look it up (<prefix>/lib/<package>/).
+console_scripts() {
+  "$VPY" -c 'import importlib.metadata as md
+print("\n".join(sorted(e.name for e in md.distribution("rbc_registration").entry_points
+                        if e.group == "console_scripts")))'
+}
+layout_ok() {
+  local exe names
+  names="$(console_scripts 2>/dev/null)" && [ -n "$names" ] || return 1
+  for exe in $names; do [ -x "$VENV/lib/rbc_registration/$exe" ] || return 1; done
+}
 
 if stamp_ok deps "$DEPS_HASH" && rosidl_stamps_ok && stamp_ok project "$PROJECT_HASH" \
-    && check_imports; then
+    && check_imports && layout_ok; then
   say "venv up to date ($VENV)"
   if [ "$FREEZE" = 0 ]; then exit 0; fi
-elif stamp_ok deps "$DEPS_HASH" && rosidl_stamps_ok && stamp_ok project "$PROJECT_HASH"; then
+elif stamp_ok deps "$DEPS_HASH" && rosidl_stamps_ok && stamp_ok project "$PROJECT_HASH" \
+    && ! check_imports; then
   say "venv is stamped up to date but does not import: rebuilding the interfaces and the project"
   rm -f "$STAMPS"/rosidl-* "$STAMPS/project"
 fi
@@ -185,7 +201,7 @@ for pkg in "${ROSIDL_PACKAGES[@]}"; do
 done
 
 # --- 4. The project, editable ------------------------------------------------------------------
-if ! stamp_ok project "$PROJECT_HASH" || ! check_imports; then
+if ! stamp_ok project "$PROJECT_HASH" || ! check_imports || ! layout_ok; then
   say "installing rbc_registration (pip install -e .)"
   # --use-pep517: an editable wheel (PEP 660), so the console scripts land in .venv/bin; the legacy
   # `setup.py develop` would follow setup.cfg and hide them in .venv/lib/rbc_registration.
@@ -198,12 +214,19 @@ if ! stamp_ok project "$PROJECT_HASH" || ! check_imports; then
   mkdir -p "$SHARE" "$VENV/share/ament_index/resource_index/packages"
   for item in package.xml launch config; do ln -sfn "$ROOT/$item" "$SHARE/$item"; done
   : >"$VENV/share/ament_index/resource_index/packages/rbc_registration"
+  # The editable wheel puts the console scripts in .venv/bin; `ros2 run` and launch_ros look for
+  # them in <prefix>/lib/rbc_registration/ (setup.cfg's install_scripts): link them there.
+  mkdir -p "$VENV/lib/rbc_registration"
+  for exe in $(console_scripts); do
+    ln -sfn "$VENV/bin/$exe" "$VENV/lib/rbc_registration/$exe"
+  done
   check_imports || {
     for pkg in "${ROSIDL_PACKAGES[@]}"; do "$VPY" -c "${ROSIDL_CHECK[$pkg]}" || true; done
     "$VPY" -c 'import rclpy, numpy, scipy, rosbags, yaml
 import rbc_registration' || true
     die "imports fail after set-up"
   }
+  layout_ok || die "the console scripts are not all in $VENV/lib/rbc_registration after set-up"
   stamp_set project "$PROJECT_HASH"
 fi
 
