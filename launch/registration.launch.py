@@ -7,6 +7,9 @@ docs/BUILD.md. Each node gets its own ``state_dir`` by default,
 
     ros2 launch rbc_registration registration.launch.py namespace:=cell_a
     ros2 launch rbc_registration registration.launch.py namespace:=cell_b dimension:=2
+    ros2 launch rbc_registration registration.launch.py calibration_file:=/path/cell_a.yaml
+
+``publish.launch.py`` is this file with ``calibration_file`` only (``calibration:=NAME_OR_PATH``).
 
 Parameters: ``params_file`` first, then the arguments given here (an empty argument leaves the
 file's value; ``state_dir`` is always set here: ``auto`` by default, ``''`` for no
@@ -38,6 +41,10 @@ ARGUMENTS = (
                         "tokens>.<node_name> (ROS_HOME default ~/.ros), one per node, as the "
                         "node derives it itself; '' (empty): no persistence; otherwise that "
                         "directory"),
+    ("calibration_file", "", "calibration_file parameter: a calibration file's path, or a "
+                             "calibration's name (state_dir/calibrations/NAME.yaml), loaded at "
+                             "start and published until a live model is built; empty: from "
+                             "params_file (config default: none)"),
     ("params_file", "<share>/config/registration_node.yaml",
      "YAML parameter file of registration_node (default: the package's "
      "config/registration_node.yaml)"),
@@ -59,13 +66,15 @@ def node_parameters(values: Mapping[str, str], pushed_namespace: Optional[str] =
     :return: ``(namespace, overrides)``; ``overrides`` holds only what is set here.
     :raises ValueError: naming the argument, for a bad namespace, node name, dimension or
         use_sim_time.
+
+    ``calibration_file`` is passed on as given: the node resolves a name and validates the file.
     """
     namespace = resolve_namespace(values["namespace"], pushed_namespace)
     name = values["node_name"]
     overrides: dict = {}
-    for frame in ("working_frame", "destination_frame"):
-        if values[frame]:
-            overrides[frame] = values[frame]
+    for as_given in ("working_frame", "destination_frame", "calibration_file"):
+        if values[as_given]:
+            overrides[as_given] = values[as_given]
     if values["dimension"]:
         if values["dimension"] not in ("2", "3"):
             raise ValueError(f"dimension:={values['dimension']!r}: must be 2 or 3 (or empty)")

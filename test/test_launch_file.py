@@ -1,4 +1,4 @@
-"""launch/registration.launch.py.
+"""launch/registration.launch.py and launch/publish.launch.py.
 
 `launch` / `launch_ros` are not on PyPI, so in the development venv the real launch test is
 skipped. What always runs: the file's declared arguments and defaults (read from the file with
@@ -24,20 +24,22 @@ from rbc_registration.io.state_paths import default_state_dir
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LAUNCH_FILE = os.path.join(REPO, "launch", "registration.launch.py")
+PUBLISH_FILE = os.path.join(REPO, "launch", "publish.launch.py")
 EXPECTED_ARGUMENTS = ["namespace", "node_name", "working_frame", "destination_frame", "dimension",
-                      "state_dir", "params_file", "use_sim_time"]
+                      "state_dir", "calibration_file", "params_file", "use_sim_time"]
 
 
-def _load_launch_module():
-    spec = importlib.util.spec_from_file_location("registration_launch", LAUNCH_FILE)
+def _load_launch_module(path=LAUNCH_FILE):
+    spec = importlib.util.spec_from_file_location(
+        os.path.basename(path).replace(".", "_"), path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
-def _arguments_from_ast():
-    """ARGUMENTS of the launch file, read without running it."""
-    with open(LAUNCH_FILE, encoding="utf-8") as f:
+def _arguments_from_ast(path=LAUNCH_FILE):
+    """ARGUMENTS of a launch file, read without running it."""
+    with open(path, encoding="utf-8") as f:
         tree = ast.parse(f.read())
     for node in tree.body:
         if isinstance(node, ast.Assign) and [t.id for t in node.targets] == ["ARGUMENTS"]:
@@ -51,15 +53,20 @@ def test_declared_arguments_and_defaults():
     defaults = {name: default for name, default, _ in arguments}
     assert defaults["namespace"] == "" and defaults["node_name"] == "registration_node"
     assert defaults["state_dir"] == "auto" == _load_launch_module().AUTO
-    for name in ("working_frame", "destination_frame", "dimension", "use_sim_time"):
+    for name in ("working_frame", "destination_frame", "dimension", "calibration_file",
+                 "use_sim_time"):
         assert defaults[name] == "", name  # empty: params_file decides
     assert all(description for _, _, description in arguments)
 
 
-def test_build_md_documents_every_argument_with_its_default():
+def _launch_arguments_section():
     with open(os.path.join(REPO, "docs", "BUILD.md"), encoding="utf-8") as f:
         text = f.read()
-    section = re.split(r"\n##+ ", text.split("### Launch arguments\n", 1)[1], maxsplit=1)[0]
+    return re.split(r"\n#{2,3} ", text.split("### Launch arguments\n", 1)[1], maxsplit=1)[0]
+
+
+def test_build_md_documents_every_argument_with_its_default():
+    section = _launch_arguments_section().split("#### publish.launch.py", 1)[0]
     rows = [r for r in section.splitlines() if r.startswith("| `")]
     documented = {}
     for row in rows:
@@ -124,10 +131,16 @@ def test_pushed_namespace_applies_to_the_node_and_its_state_dir():
 
 def test_arguments_override_params_file_values():
     module, values = _values(working_frame="laser_tracker", destination_frame="base_link",
-                             dimension="2", use_sim_time="True", state_dir="/var/lib/rbc/a")
+                             dimension="2", use_sim_time="True", state_dir="/var/lib/rbc/a",
+                             calibration_file="/var/lib/rbc/a/cell_a.yaml")
     assert module.node_parameters(values)[1] == {
         "working_frame": "laser_tracker", "destination_frame": "base_link", "dimension": 2,
-        "use_sim_time": True, "state_dir": "/var/lib/rbc/a"}
+        "use_sim_time": True, "state_dir": "/var/lib/rbc/a",
+        "calibration_file": "/var/lib/rbc/a/cell_a.yaml"}
+    # a calibration's name is passed on as given: the node resolves it in its state_dir
+    module, values = _values(calibration_file="line1")
+    assert module.node_parameters(values)[1] == {
+        "calibration_file": "line1", "state_dir": "~/.ros/rbc_registration/registration_node"}
     module, values = _values(state_dir="", use_sim_time="false")
     assert module.node_parameters(values)[1] == {"state_dir": "", "use_sim_time": False}
 
@@ -159,7 +172,9 @@ class _LaunchConfiguration(_Recorded):
 def _stand_in_modules():
     names = {"launch": {"LaunchDescription": _Recorded},
              "launch.actions": {n: type(n, (_Recorded,), {})
-                                for n in ("DeclareLaunchArgument", "OpaqueFunction", "LogInfo")},
+                                for n in ("DeclareLaunchArgument", "OpaqueFunction", "LogInfo",
+                                          "IncludeLaunchDescription")},
+             "launch.launch_description_sources": {"PythonLaunchDescriptionSource": _Recorded},
              "launch.substitutions": {"PathJoinSubstitution": _Recorded,
                                       "LaunchConfiguration": _LaunchConfiguration},
              "launch_ros": {}, "launch_ros.actions": {"Node": type("Node", (_Recorded,), {})},
@@ -202,6 +217,62 @@ def test_generate_launch_description_declares_every_argument_then_builds_the_nod
         "output": "screen", "emulate_tty": True}
     assert log.kwargs["msg"] == ("/line1/cell_b/registration_node: state_dir "
                                  "~/.ros/rbc_registration/line1.cell_b.registration_node")
+
+
+# --- publish.launch.py ---------------------------------------------------------------------------
+
+def test_publish_launch_takes_only_a_required_calibration():
+    assert [a[0] for a in _arguments_from_ast(PUBLISH_FILE)] == ["calibration"]
+    assert all(len(a) == 2 and a[1] for a in _arguments_from_ast(PUBLISH_FILE))  # no default
+    module = _load_launch_module(PUBLISH_FILE)
+    assert module.included_arguments({"calibration": "line1"}) == {"calibration_file": "line1"}
+    assert "calibration_file" in [a[0] for a in _arguments_from_ast()]
+
+
+def test_publish_launch_includes_registration_launch_with_calibration_file(monkeypatch):
+    for name, module in _stand_in_modules().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    module = _load_launch_module(PUBLISH_FILE)
+    entities = module.generate_launch_description().args[0]
+    (declared,) = [e for e in entities if type(e).__name__ == "DeclareLaunchArgument"]
+    assert declared.args == ("calibration",) and "default_value" not in declared.kwargs
+    assert declared.kwargs["description"]
+    (include,) = [e for e in entities if type(e).__name__ == "IncludeLaunchDescription"]
+    assert entities[-1] is include
+    (source,) = include.args
+    assert os.path.samefile(source.args[0], LAUNCH_FILE)
+    ((argument, value),) = include.kwargs["launch_arguments"]
+    assert argument == "calibration_file" and value.args == ("calibration",)
+    # what registration.launch.py then gives the node: the value as given
+    configurations = {n: d for n, d, _ in _load_launch_module().ARGUMENTS}
+    configurations.update(params_file="/opt/cfg/p.yaml", calibration_file="line1")
+    context = types.SimpleNamespace(launch_configurations=configurations)
+    (opaque,) = [e for e in _load_launch_module().generate_launch_description().args[0]
+                 if type(e).__name__ == "OpaqueFunction"]
+    _, node = opaque.kwargs["function"](context)
+    assert node.kwargs["parameters"][1] == {
+        "calibration_file": "line1", "state_dir": default_state_dir("/", "registration_node")}
+
+
+def test_publish_launch_is_installed_beside_registration_launch():
+    """setup.py's data_files install every launch/*.py into share/rbc_registration/launch,
+    where publish.launch.py finds registration.launch.py."""
+    with open(os.path.join(REPO, "setup.py"), encoding="utf-8") as f:
+        assert "('share/' + package_name + '/launch', glob('launch/*.py'))" in f.read()
+    from glob import glob
+    assert {PUBLISH_FILE, LAUNCH_FILE} <= set(glob(os.path.join(REPO, "launch", "*.py")))
+    packages = pytest.importorskip("ament_index_python.packages")
+    try:
+        share = packages.get_package_share_directory("rbc_registration")
+    except (LookupError, ValueError) as exc:  # not installed in an ament index (a plain venv)
+        pytest.skip(f"rbc_registration not in an ament index: {exc}")
+    for name in ("publish.launch.py", "registration.launch.py"):
+        assert os.path.isfile(os.path.join(share, "launch", name)), share
+
+
+def test_build_md_documents_publish_launch():
+    section = _launch_arguments_section().split("#### publish.launch.py", 1)[1]
+    assert "calibration:=" in section and "calibration_file" in section
 
 
 # --- the real thing, where ROS 2 launch is installed -------------------------------------------
