@@ -57,6 +57,15 @@ say "installing rbc_registration (pip install --no-deps, not editable)"
 "$VPY" -m pip uninstall -y rbc_registration >>"$LOG" 2>&1 || true
 "$VPY" -m pip install --no-deps "$SRC" >>"$LOG" 2>&1 \
   || { tail -n 30 "$LOG" >&2; die "installing the project failed (log: $LOG)"; }
+# pip puts the console scripts in bin/; `ros2 run` and launch_ros look for them in
+# <prefix>/lib/rbc_registration/ (setup.cfg's install_scripts, as colcon installs them): link them.
+rm -rf "$VENV/lib/rbc_registration"
+mkdir -p "$VENV/lib/rbc_registration"
+for exe in $("$VPY" -c 'import importlib.metadata as md
+print("\n".join(sorted(e.name for e in md.distribution("rbc_registration").entry_points
+                        if e.group == "console_scripts")))'); do
+  ln -sfn "$VENV/bin/$exe" "$VENV/lib/rbc_registration/$exe"
+done
 (cd "$VENV" && "$VPY" - "$PINS" <<'EOF') || die "the venv does not hold the pinned versions and an installed rbc_registration"
 import importlib.metadata as md, re, sys
 pins = dict(re.match(r"([A-Za-z0-9_.-]+)==(\S+)", line).groups()
