@@ -44,6 +44,25 @@ MIN_REPRODUCE_REPEATS = 2
 M_PER_MM = 1e-3
 #: Millimetres per metre (figures and Markdown reports of metre data show mm).
 MM_PER_M = 1e3
+#: The length units ``register --unit`` accepts and ``export`` converts to metres (its
+#: ``--unit`` and a report's ``unit``): metres per unit.
+METRES_PER_UNIT = {"m": 1.0, "cm": 1e-2, "mm": M_PER_MM, "um": 1e-6, "in": 0.0254}
+#: Other spellings of those units, read as the unit they name: the micro sign (U+00B5) and the
+#: Greek mu (U+03BC) of micrometres, and ``inch``.
+UNIT_ALIASES = {"\u00b5m": "um", "\u03bcm": "um", "inch": "in"}
+
+
+def length_unit(text: str) -> str:
+    """The unit of :data:`METRES_PER_UNIT` that ``text`` names (an alias of
+    :data:`UNIT_ALIASES` as its unit: ``µm`` is ``um``).
+
+    :raises ValueError: for any other text, naming it and the units accepted.
+    """
+    unit = UNIT_ALIASES.get(text, text) if isinstance(text, str) else text
+    if not isinstance(unit, str) or unit not in METRES_PER_UNIT:
+        raise ValueError(f"unknown length unit {text!r}: one of {', '.join(METRES_PER_UNIT)} "
+                         f"(also {', '.join(UNIT_ALIASES)})")
+    return unit
 
 
 

@@ -5,6 +5,8 @@ numpy + scipy only. A 2D rotation (2, 2) is the rotation about z it is in 3D.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -46,6 +48,23 @@ def quaternion_from_matrix(rotation: ArrayLike) -> tuple[float, float, float, fl
                 q = -q
             break
     return tuple(float(v) + 0.0 for v in q)  # + 0.0: no -0.0 in files and command lines
+
+
+def rpy_from_matrix(rotation: ArrayLike) -> tuple[float, float, float]:
+    """Roll, pitch, yaw [rad] of a proper rotation matrix, (2, 2) or (3, 3): fixed axes X, Y, Z
+    (REP 103; tf2's ``getRPY``), ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``, pitch in [-pi/2, pi/2].
+    A 2D rotation is about z: roll = pitch = 0. At pitch = ±pi/2 (gimbal lock) roll is 0 and
+    yaw carries the rest.
+
+    :raises ValueError: as :func:`quaternion_from_matrix`.
+    """
+    r = _as_rotation3(rotation)
+    if np.asarray(rotation).shape == (2, 2):
+        return 0.0, 0.0, float(np.arctan2(r[1, 0], r[0, 0])) + 0.0
+    with warnings.catch_warnings():   # gimbal lock: scipy warns and sets the third angle to 0
+        warnings.simplefilter("ignore", UserWarning)
+        yaw, pitch, roll = Rotation.from_matrix(r).as_euler("ZYX")   # intrinsic z-y'-x''
+    return float(roll) + 0.0, float(pitch) + 0.0, float(yaw) + 0.0
 
 
 def _as_rotation3(rotation: ArrayLike) -> NDArray[np.float64]:
