@@ -1,6 +1,7 @@
 """``rbc-registration export``: a calibration file (docs/CALIBRATION.md) from the node's snapshot
 (``state_dir/calibration.json``) or a ``register`` / ``evaluate --json`` report, and the forms
-ROS users load: the ``static_transform_publisher`` line and a launch snippet."""
+ROS users load: the ``static_transform_publisher`` line, a launch snippet and, with ``--urdf``,
+a URDF / xacro fixed joint (``<origin xyz rpy>``, metres and radians)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ..core.constants import METRES_PER_UNIT
 from ..io.escape import terminal
-from .options import output_file, refuse_outputs_onto_inputs
+from .options import output_file, refuse_outputs_onto_inputs, unit_name
 
 #: Largest report or snapshot read (a snapshot of 100,000 fiducials is ~30 MB).
 MAX_SOURCE_BYTES = 256 << 20
@@ -32,15 +34,23 @@ def add_parser(sub: Any) -> None:
     exp.add_argument("--child-frame", help="working frame (default: the snapshot's or an "
                                            "evaluate report's; a register report: tracker, "
                                            "with a warning)")
-    exp.add_argument("--unit", choices=("m", "mm"),
-                     help="length unit of a source that records none; a report's 'unit' (a "
+    exp.add_argument("--unit", type=unit_name, metavar="{" + ",".join(METRES_PER_UNIT) + "}",
+                     help="length unit of a source that records none (µm is um, inch is in); "
+                          "a report's 'unit' (a "
                           "snapshot: metres) is used, and a different --unit is refused; the "
                           "file is in metres")
+    exp.add_argument("--urdf", type=output_file, metavar="OUT.urdf.xacro",
+                     help="also write the registration as a URDF / xacro fixed joint (parent "
+                          "link = parent frame, child link = child frame, <origin xyz rpy> in "
+                          "metres and radians) and print the joint; xacro:include it")
+    exp.add_argument("--joint-name", metavar="NAME",
+                     help="name of the --urdf joint (default PARENT_to_CHILD)")
     exp.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write the YAML, print the static_transform_publisher line and the launch snippet."""
+    """Write the YAML (and the --urdf joint), print the static_transform_publisher line and the
+    launch snippet (and the joint)."""
     import json
     import sys
 
@@ -49,7 +59,12 @@ def run(args: argparse.Namespace) -> int:
     from ..io.calibration_model import calibration_from_document
     from ..pipeline.files import check_input_file
 
-    refuse_outputs_onto_inputs([("--out", args.out)], [("source", args.source)])
+    if args.joint_name is not None and args.urdf is None:
+        raise ValueError("--joint-name names the --urdf joint: give --urdf OUT.urdf.xacro too")
+    if args.joint_name is not None and not args.joint_name.strip():
+        raise ValueError("--joint-name must not be empty")
+    refuse_outputs_onto_inputs([("--out", args.out), ("--urdf", args.urdf)],
+                               [("source", args.source)])
     where = str(args.source)
     try:
         check_input_file(where, MAX_SOURCE_BYTES)      # NotARegularFile: a ValueError, as is
@@ -72,4 +87,11 @@ def run(args: argparse.Namespace) -> int:
     print(static_transform_publisher_command(cal))
     print()
     print(launch_snippet(cal), end="")
+    if args.urdf is not None:
+        from ..io.urdf import urdf_joint, write_urdf
+
+        write_urdf(str(args.urdf), cal, args.joint_name)
+        print()
+        print(f"wrote {terminal(args.urdf)}: xacro:include it, or paste the joint into the URDF")
+        print(urdf_joint(cal, args.joint_name), end="")
     return 0

@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Iterable, NoReturn, Optional, Sequence
 
-from ..core.constants import DECISION_MODES, DIMENSIONS, INTERPOLATIONS, RESTORATIONS
+from ..core.constants import (DECISION_MODES, DIMENSIONS, INTERPOLATIONS, METRES_PER_UNIT,
+                              RESTORATIONS, length_unit)
 from ..io.escape import terminal
 
 
@@ -64,6 +65,15 @@ def integer_in(low: int, high: int) -> Callable[[str], int]:
 
 #: ``--seed``: what numpy's generators take.
 seed = integer_in(0, 2**64 - 1)
+
+
+def unit_name(text: str) -> str:
+    """An argument type: a length unit of :data:`~rbc_registration.core.constants.
+    METRES_PER_UNIT` (an alias, e.g. ``µm``, as its unit: ``um``)."""
+    try:
+        return length_unit(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def non_negative(text: str) -> float:
@@ -134,7 +144,6 @@ def warn_model(command: str, model: Any, unit: str) -> None:
     small for ``unit`` (:func:`~rbc_registration.core.scale.implausible_size`)."""
     from ..core.scale import implausible_size
     from ..core.warnings import model_warnings
-    from ..io.calibration_model import METRES_PER_UNIT
 
     for line in model_warnings(model, unit):
         warn(command, line)

@@ -6,9 +6,11 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
+from ..core.constants import METRES_PER_UNIT
 from ..io.escape import terminal
 from .options import (add_model_options, name_list, non_negative, output_file,
-                      refuse_outputs_onto_inputs, warn, warn_model, warn_unit_mismatch)
+                      refuse_outputs_onto_inputs, unit_name, warn, warn_model,
+                      warn_unit_mismatch)
 
 if TYPE_CHECKING:   # imported when the subcommand runs (a fast --help)
     from ..core.model import ModelConfig
@@ -34,9 +36,10 @@ def add_parser(sub: Any) -> None:
                           "outlier_distance); 0 = off (default: 0.25 x the fiducial spacing). "
                           "Rows of one target id farther apart than D (default: 0.25 x the "
                           "target spacing) refuse the targets file")
-    reg.add_argument("--unit", default="mm",
-                     help="unit of the file (default mm): named in the report; export converts "
-                     "to metres by it")
+    reg.add_argument("--unit", default="mm", type=unit_name,
+                     help=f"unit of the file (default mm): {', '.join(METRES_PER_UNIT)} (µm is "
+                          f"um, inch is in); named in the report; export converts to metres "
+                          f"by it")
     reg.add_argument("--json", type=output_file, metavar="OUT.json",
                      help="write the report as JSON")
     reg.set_defaults(func=run)

@@ -11,6 +11,11 @@ output: one function per output kind.
   ~ { } +``): no emphasis, link, image, heading or table cell comes out of a value.
 - :func:`markdown_code`: a Markdown code span: :func:`terminal` first, then a backtick fence
   longer than any run of backticks in the value (CommonMark, "code spans").
+- :func:`xml_attribute`: an XML attribute value, quotes included (URDF, xacro): :func:`terminal`
+  first (XML 1.0 allows no control characters), then ``& < > "`` as entities, so a value never
+  ends the attribute or opens a tag.
+- :func:`xml_comment`: text inside an XML comment: :func:`terminal` first, then a space after
+  each ``-`` that a ``-`` follows, so no ``--`` (which XML forbids there) and no ``-->``.
 
 JSON needs none of this (``json.dumps`` escapes every control character).
 """
@@ -63,3 +68,17 @@ def markdown_code(value: object) -> str:
     fence = "`" * (longest + 1)
     pad = " " if text.startswith("`") or text.endswith("`") or not text.strip(" ") else ""
     return f"{fence}{pad}{text}{pad}{fence}"
+
+
+_XML_ATTRIBUTE = {"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;"}
+
+
+def xml_attribute(value: object) -> str:
+    """``value`` as a double-quoted XML attribute value (``"..."``, quotes included)."""
+    return '"' + "".join(_XML_ATTRIBUTE.get(ch, ch) for ch in terminal(value)) + '"'
+
+
+def xml_comment(value: object) -> str:
+    """``value`` as text for an XML comment, one line without ``--``; close the comment with
+    ``" -->"`` (a space first, so a last ``-`` does not touch it)."""
+    return re.sub("-(?=-)", "- ", terminal(value))

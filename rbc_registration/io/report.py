@@ -9,9 +9,11 @@ from typing import Any, Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..core.constants import UNCORRECTED
 from ..core.evaluation import TargetErrors, target_errors
 from ..core.model import RbcModel
 from ..core.noise import format_rho
+from ..core.quaternion import quaternion_from_matrix, rpy_from_matrix
 from ..pipeline.jsonable import json_number as _num
 from ..pipeline.jsonable import json_vector as _vec
 from ..pipeline.jsonable import registration_json
@@ -32,6 +34,21 @@ def _destination_summary(tre: Optional[np.ndarray], bound: np.ndarray) -> dict[s
     finite = np.isfinite(bound)
     within = float(np.mean(tre[finite] <= bound[finite])) if finite.any() else None
     return {"tre_median": _num(float(np.median(tre))), "fraction_within_bound": _num(within)}
+
+
+def chosen_registration_json(model: RbcModel) -> dict[str, Any]:
+    """The registration targets get (the report's ``registration``): ``name``
+    (``uncorrected`` when the decision's method is, else ``corrected``), ``method`` (the
+    decision's: ``uncorrected``, or the interpolation whose corrections targets get on top of
+    it), and the transform ``destination = R @ working + t`` by ``translation`` (t, d numbers,
+    unit of the points), ``quaternion`` (x, y, z, w of R; 2D: about z) and ``rpy_deg`` (roll,
+    pitch, yaw of R in degrees, fixed axes X, Y, Z: REP 103, tf2's ``getRPY``, URDF's
+    ``rpy``)."""
+    name = UNCORRECTED if model.decision.method == UNCORRECTED else "corrected"
+    reg = model.uncorrected if name == UNCORRECTED else model.corrected
+    return {"name": name, "method": model.decision.method, "translation": _vec(reg.translation),
+            "quaternion": list(quaternion_from_matrix(reg.rotation)),
+            "rpy_deg": [_num(float(np.degrees(a)) + 0.0) for a in rpy_from_matrix(reg.rotation)]}
 
 
 def _ids(model: RbcModel, subset: Optional[Sequence[int]]) -> Optional[list[str]]:
@@ -63,6 +80,7 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
         "rho_thresholds": [cfg.rho_reject, cfg.rho_apply],
         "recommendation": model.recommendation,
         "decision": model.decision.to_dict(),
+        "registration": chosen_registration_json(model),
         "uncorrected": registration_json(model.uncorrected),
         "corrected": registration_json(model.corrected),
         "fiducials": [{"id": fid, "correction": _vec(eps), "n": int(n)}
@@ -153,15 +171,85 @@ def decision_lines(decision: dict[str, Any], unit: str) -> list[str]:
     return lines
 
 
+def _numbers(values: Sequence[Any]) -> str:
+    """Numbers of a transform, 10 significant digits (to copy into a launch file or URDF)."""
+    return ", ".join("n/a" if v is None else f"{float(v):.10g}" for v in values)
+
+
+def registration_lines(reg: dict[str, Any], unit: str) -> list[str]:
+    """The chosen registration of a report (its ``registration`` object) as text lines:
+    translation (``unit``), quaternion x, y, z, w and roll, pitch, yaw in degrees."""
+    axes = "x, y, z" if len(reg["translation"]) == 3 else "x, y"
+    then = ("" if reg["method"] == UNCORRECTED
+            else f", then each target's {reg['method']} correction")
+    return [f"  registration {reg['name']} (destination = R working + t{then})",
+            f"    translation  {axes} = {_numbers(reg['translation'])} {unit}",
+            f"    quaternion   x, y, z, w = {_numbers(reg['quaternion'])}",
+            f"    rpy          roll, pitch, yaw = {_numbers(reg['rpy_deg'])} deg (fixed axes "
+            f"X, Y, Z: REP 103, tf2, URDF)"]
+
+
+def _target_columns(report: dict[str, Any]) -> list[tuple[str, str]]:
+    """The TRE columns of the target table, ``(method, JSON key)``: the decision's method
+    (``tre``, the points to use), the uncorrected registration (``tre_u``) and the configured
+    interpolation (``tre_c``), each method once."""
+    columns: list[tuple[str, str]] = []
+    for method, key in ((report["decision"]["method"], "tre"), (UNCORRECTED, "tre_u"),
+                        (report["interpolation"], "tre_c")):
+        if method not in (m for m, _ in columns):
+            columns.append((method, key))
+    return columns
+
+
+def _target_lines(report: dict[str, Any], u: str) -> list[str]:
+    """The target table, every column named by its method, and its summary."""
+    used, configured = report["decision"]["method"], report["interpolation"]
+    truth = "tre_u" in report["targets"][0]
+    cols = _target_columns(report) if truth else []
+    heads = ([f"|eps| {configured}", "hull", f"exp. TRE {used}", f"95% bound {used}"]
+             + [f"TRE {m}" for m, _ in cols] + ([f"dTRE {configured}"] if truth else []))
+    widths = [max(5 if h == "hull" else 10, len(h)) for h in heads]
+    lines = ["", f"  targets ({u}): the points to use are {used}'s (the decision); |eps| is "
+                 f"{configured}'s (the configured interpolation)"
+                 + (f"; dTRE {configured} = TRE {configured} - TRE {UNCORRECTED} (eq. 3)"
+                    if truth else ""),
+             f"  {'target':<10} " + " ".join(f"{h:>{w}}" for h, w in zip(heads, widths))]
+    for t in report["targets"]:
+        eps = float(np.linalg.norm(np.array(t["correction"], float)))
+        cells = [f"{eps:.4g}", "in" if t["inside_hull"] else "OUT", _fmt(t["expected_tre"]),
+                 _fmt(t["tre_bound"])]
+        if truth and t["tre_u"] is None:        # this target has no truth
+            cells += ["n/a"] * (len(cols) + 1)
+        elif truth:
+            cells += [f"{t[key]:.4g}" for _, key in cols] + [f"{t['tre_c'] - t['tre_u']:+.3g}"]
+        lines.append(f"  {terminal(t['id']):<10} "
+                     + " ".join(f"{c:>{w}}" for c, w in zip(cells, widths)))
+    s = report["summary"]
+    if s["tre_u_median"] is not None:
+        medians = {"tre": s["tre_median"], "tre_u": s["tre_u_median"], "tre_c": s["tre_c_median"]}
+        first, *rest = [f"{m} {_fmt(medians[key], u)}" for m, key in cols]
+        lines.append(f"  median TRE {first} (the points to use)"
+                     + "".join(f", {r}" for r in rest)
+                     + f"; {configured} corrections improved "
+                       f"{100 * s['fraction_improved']:.0f}% of targets")
+    if truth and s["fraction_within_bound"] is not None:
+        lines.append(f"  {100 * s['fraction_within_bound']:.0f}% of targets within their 95% "
+                     f"bound ({used})")
+    return lines
+
+
 def format_report(report: dict[str, Any]) -> str:
-    """A readable text version of a report dict (ids and unit escaped for the terminal)."""
+    """A readable text version of a report dict (ids and unit escaped for the terminal): every
+    figure of a target, a fiducial or a registration is named by the method it is of."""
     u = terminal(report["unit"])
     sig_l = ", ".join(f"{v:.3g}" if v is not None else "n/a" for v in report["sigma_L"])
+    configured = report["interpolation"]
     lines = [
         f"Registration of {report['n_fiducials']} fiducials ({report['n_measurements']} "
         f"measurements), {report['dim']}D, lengths in {u}",
-        f"  restoration {report['restoration']} ({report['steps']} step(s)), "
-        f"interpolation {report['interpolation']}",
+        f"  restoration {report['restoration']} ({report['steps']} step(s)); configured "
+        f"interpolation {configured} (its corrections: |eps|, TRE {configured}); targets get "
+        f"the decision's method",
         f"  sigma        {_fmt(report['sigma'], u)} per point, {_fmt(report['sigma_axis'], u)} "
         f"per axis ({report['sigma_source']})",
         f"  sigma_L      {sig_l} {u}  (before, after each step; eq. 7)",
@@ -170,40 +258,13 @@ def format_report(report: dict[str, Any]) -> str:
         f"corrected {_fmt(report['corrected']['fre_rms'], u)}",
         *decision_lines(report["decision"], u),
     ]
+    if report.get("registration"):
+        lines += registration_lines(report["registration"], u)
     if report["targets"]:
-        truth = "tre_u" in report["targets"][0]
-        lines.append("")
-        # eps(T) of the configured interpolation (the JSON's `correction`), which the decision
-        # may not apply: the header names it
-        eps_head = f"|eps| ({report['interpolation']})"
-        head = (f"  {'target':<10} {eps_head:>16} {'hull':>5} {'exp. TRE':>10} "
-                f"{'95% bound':>10}")
-        if truth:
-            head += f" {'TRE':>10} {'TRE_u':>10} {'TRE_c':>10} {'dTRE':>10}"
-        lines.append(head)
-        for t in report["targets"]:
-            eps = float(np.linalg.norm(np.array(t["correction"], float)))
-            row = (f"  {terminal(t['id']):<10} {eps:>16.4g} "
-                   f"{'in' if t['inside_hull'] else 'OUT':>5} {_fmt(t['expected_tre']):>10} "
-                   f"{_fmt(t['tre_bound']):>10}")
-            if truth and t["tre_u"] is None:    # this target has no truth
-                row += f" {'n/a':>10} {'n/a':>10} {'n/a':>10} {'n/a':>10}"
-            elif truth:
-                row += (f" {t['tre']:>10.4g} {t['tre_u']:>10.4g} {t['tre_c']:>10.4g} "
-                        f"{t['tre_c'] - t['tre_u']:>+10.3g}")
-            lines.append(row)
-        s = report["summary"]
-        if s["tre_u_median"] is not None:
-            lines.append(f"  median TRE {_fmt(s['tre_median'], u)} (the points to use), "
-                         f"TRE_u {_fmt(s['tre_u_median'], u)}, TRE_c "
-                         f"{_fmt(s['tre_c_median'], u)}; corrections improved "
-                         f"{100 * s['fraction_improved']:.0f}% of targets")
-            if s["fraction_within_bound"] is not None:
-                lines.append(f"  {100 * s['fraction_within_bound']:.0f}% of targets within "
-                             f"their 95% bound")
+        lines += _target_lines(report, u)
     if "loo" in report:
         lo = report["loo"]
-        lines.append(f"  leave-one-out: median TRE_u {_fmt(lo['tre_u_median'], u)}, TRE_c "
-                     f"{_fmt(lo['tre_c_median'], u)}; improved "
-                     f"{100 * lo['fraction_improved']:.0f}% of fiducials")
+        lines.append(f"  leave-one-out: median TRE {UNCORRECTED} {_fmt(lo['tre_u_median'], u)}, "
+                     f"{configured} {_fmt(lo['tre_c_median'], u)}; {configured} corrections "
+                     f"improved {100 * lo['fraction_improved']:.0f}% of fiducials")
     return "\n".join(lines)

@@ -40,7 +40,8 @@ def test_register_matches_the_library(ra_files, interpolation):
     out = d / f"report_{interpolation}.json"
     proc = run("register", d / "fiducials.csv", "--targets", d / "targets.csv",
                "--interpolation", interpolation, "--json", out)
-    assert "rho" in proc.stdout and "TRE_u" in proc.stdout and "decision     cv -> " in proc.stdout
+    assert "rho" in proc.stdout and "TRE uncorrected" in proc.stdout
+    assert "decision     cv -> " in proc.stdout
     rep = json.loads(out.read_text())
     model = build_model(cell.fiducial_means, cell.fiducial_truth,
                         ModelConfig(dimension=2, interpolation=interpolation),
@@ -174,15 +175,15 @@ def test_identical_repeats_show_sigma_and_rho_unknown():
 
 @pytest.mark.parametrize("interpolation", ["paper", "kriging"])
 def test_the_target_table_names_whose_correction_it_shows(interpolation):
-    """A review: the per-target 'correction |eps|' is the configured interpolation's, which the
-    decision may not apply (cv chose kriging, or uncorrected); the header now names it."""
+    """The per-target '|eps|' is the configured interpolation's, which the decision may not
+    apply (cv chose kriging, or uncorrected); the header names it."""
     cell = make_cell("A", seed=0)
     model = build_model(cell.fiducial_means, cell.fiducial_truth,
                         ModelConfig(dimension=3, interpolation=interpolation))
     text = format_report(model_report(model, cell.target_ids[:2], cell.target_means[:2],
                                       unit="mm"))
-    head = next(line for line in text.splitlines() if line.strip().startswith("target"))
-    assert f"|eps| ({interpolation})" in head, head
+    head = next(line for line in text.splitlines() if line.strip().startswith("target "))
+    assert f"|eps| {interpolation}" in head, head
     eps = np.linalg.norm(model.correct(cell.target_means[:1]).correction[0])
     assert f"{eps:.4g}" in text
 

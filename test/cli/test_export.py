@@ -67,10 +67,13 @@ def test_export_of_a_node_snapshot(tmp_path, capsys, node_state, registration):
         model.decision.candidate("uncorrected").cv_median, rel=1e-12)
     assert cal.n_fiducials == 18 and cal.created.startswith("2023-11-14T22:13:20.5")
     assert cal.sigma == pytest.approx(model.sigma, rel=1e-12)
-    # The node's own ~/save builds the same calibration from the state.
+    # The node's own ~/save builds the same calibration from the state, with the answers a
+    # snapshot does not hold (an exported file publishes tf only).
     direct = calibration_from_state(state, settings, registration)
+    assert cal.answers is None and direct.answers is not None
     assert direct.to_mapping() == {**cal.to_mapping(), "package_version":
-                                   direct.package_version}
+                                   direct.package_version,
+                                   "answers": direct.answers.to_mapping()}
     printed = capsys.readouterr().out
     assert static_transform_publisher_command(cal) in printed.splitlines()
     assert "executable='static_transform_publisher'" in printed and "'--frame-id', 'base'" \
@@ -110,7 +113,7 @@ def test_export_of_a_register_report_in_mm(tmp_path, capsys):
     ("{not json", "not valid JSON"),
     ('{"format": "rbc_registration calibration 1", "model_valid": false, "error": "3 enabled"}',
      "holds no model (3 enabled)"),
-    ('{"unit": "in", "interpolation": "paper"}', "unit 'in'"),
+    ('{"unit": "ft", "interpolation": "paper"}', "unit 'ft'"),
     ('{"unit": "mm", "interpolation": "paper", "n_fiducials": 5, "sigma_L": [1.0], '
      '"recommendation": "apply"}', "corrected: missing"),
     ('{"unit": "mm", "n_fiducials": 5, "sigma_L": [1.0], "corrected": {"rotation": [[1, 0], '
@@ -277,8 +280,8 @@ def test_a_report_without_a_unit_needs_one(tmp_path, capsys):
     src = tmp_path / "in.json"
     src.write_text(json.dumps(data))
     assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml")]) == 2
-    assert f"{src}: unit: missing: the file records no length unit; give --unit (m, mm)" in \
-        capsys.readouterr().err
+    assert (f"{src}: unit: missing: the file records no length unit; give --unit "
+            f"(m, cm, mm, um, in)") in capsys.readouterr().err
     assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml"), "--unit", "mm"]) == 0
 
 
@@ -288,7 +291,8 @@ def test_the_snapshot_unit_and_dimension_are_checked(tmp_path, capsys, node_stat
     for change, args, message in (
             ({}, ["--unit", "mm"], "--unit mm contradicts the file's units 'm': refused"),
             ({"units": "mm"}, [], None),
-            ({"units": "ft"}, [], "units 'ft': a calibration is in metres; export converts m, mm"),
+            ({"units": "ft"}, [], "units 'ft': a calibration is in metres; export converts "
+                                  "m, cm, mm, um, in"),
             ({"dimension": 2}, [], "dimension is 2, but the rotation is 3 x 3")):
         src = tmp_path / "calibration.json"
         src.write_text(json.dumps({**data, **change}))
