@@ -82,11 +82,15 @@ def _clean_terminal(text: str) -> None:
 
 def test_register_text_report_escapes_ids_and_unit(hostile_files, capsys):
     d, _, n_targets = hostile_files
-    assert cli.main(["register", str(d / "f.csv"), "--targets", str(d / "t.csv"),
-                     "--unit", "mm\x1b[8m\n# unit"]) == 0
+    with pytest.raises(SystemExit):      # a unit is one of METRES_PER_UNIT: refused, escaped
+        cli.main(["register", str(d / "f.csv"), "--unit", "mm\x1b[8m\n# unit"])
+    err = capsys.readouterr().err
+    _clean_terminal(err)
+    assert len(err.strip().splitlines()) == 1 and "mm\\x1b[8m\\n# unit" in err
+    assert cli.main(["register", str(d / "f.csv"), "--targets", str(d / "t.csv")]) == 0
     out = capsys.readouterr().out
     _clean_terminal(out)
-    assert escape.terminal(HOSTILE + "0") in out and "mm\\x1b[8m\\n# unit" in out
+    assert escape.terminal(HOSTILE + "0") in out
     rows = [line for line in out.splitlines() if "onerror" in line]
     assert len(rows) == 3                            # one line per hostile target, none split
 
