@@ -184,8 +184,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self.create_timer(s.status_period, self._publish_status,
                           callback_group=MutuallyExclusiveCallbackGroup(),
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.add_post_set_parameters_callback(self._on_parameters_set)
+        self.add_parameter_callbacks()
 
         if self._loaded is not None:  # publish what was registered before, until a live model
             transform = saved.calibration_transform(self._loaded.calibration,

@@ -1,7 +1,14 @@
 """The parameter callbacks of ``registration_node`` (a mixin of
-:class:`~rbc_registration.ros.node.RegistrationNode`): rclpy's reasons for a wrong type or an
-undeclared parameter made to name what was wrong; validation of a change (refused with the
-reason, nothing applied); an accepted change applied to the ingestion, tf and the next rebuild.
+:class:`~rbc_registration.ros.node.RegistrationNode`), on rclpy's public callbacks only:
+
+- pre-set (:meth:`ParametersMixin._pre_set_parameters`): an undeclared parameter is refused
+  naming it, and a value of the wrong ROS type is marked with the reason naming the parameter
+  and both types (rclpy's own reason gives type codes only);
+- on-set (:meth:`ParametersMixin._on_set_parameters`): a marked value, or a change the
+  :class:`~rbc_registration.pipeline.settings.Settings` refuse, is refused with its reason and
+  nothing is applied;
+- post-set (:meth:`ParametersMixin._on_parameters_set`): an accepted change is applied to the
+  ingestion, tf and the next rebuild.
 """
 
 from __future__ import annotations
@@ -16,9 +23,20 @@ from ..pipeline.settings import SPECS
 from . import params, samples
 
 
+class WrongTypeParameter(Parameter):
+    """A set request's value of the wrong ROS type, held back by the pre-set callback: it carries
+    the parameter's current value (so rclpy's descriptor checks pass it on unchanged) and the
+    ``reason`` the on-set callback refuses the request with."""
+
+    def __init__(self, current: Parameter, reason: str) -> None:
+        super().__init__(current.name, current.type_, current.value)
+        self.reason = reason
+
+
 class ParametersMixin:
     """Parameter callbacks; the node provides ``_settings``, ``_ingest``, ``_pub_lock``,
-    ``_publish_tf`` and ``_worker``."""
+    ``_publish_tf`` and ``_worker``, and registers the three callbacks with
+    :meth:`add_parameter_callbacks`."""
 
     _settings: Any
     _ingest: Any
@@ -26,28 +44,41 @@ class ParametersMixin:
     _worker: Any
     _publish_tf: Any
 
-    def _apply_descriptor(self, parameter: Parameter, descriptor: Any = None,
-                          *args: Any, **kwargs: Any) -> Any:
-        """rclpy's type check, with a reason naming the parameter and the types (rclpy 3.11+
-        prints the type codes only: "expected '3' got '2'"), for rclpy's own parameters
-        (``use_sim_time``) too."""
-        result = super()._apply_descriptor(parameter, descriptor, *args, **kwargs)
-        if not result.successful and result.reason.startswith("Wrong parameter type"):
-            if descriptor is None:
-                descriptor = self.describe_parameter(parameter.name)
-            result.reason = params.type_error(parameter.name, parameter.type_.name,
-                                              parameter.value,
-                                              Parameter.Type(descriptor.type).name)
-        return result
+    def add_parameter_callbacks(self: Any) -> None:
+        """Register the pre-set, on-set and post-set callbacks (rclpy's public API)."""
+        self.add_pre_set_parameters_callback(self._pre_set_parameters)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._on_parameters_set)
 
-    def _check_undeclared_parameters(self, parameter_list: list[Parameter]) -> None:
-        """rclpy's check, naming the unknown parameters (rclpy lists none: "[]")."""
-        unknown = [p.name for p in parameter_list if not self.has_parameter(p.name)]
-        if unknown and not getattr(self, "_allow_undeclared_parameters", False):
+    def _pre_set_parameters(self: Any, parameters: list[Parameter]) -> list[Parameter]:
+        """Refuse undeclared parameters by name (rclpy's own check lists none: "[]"); replace
+        each value of the wrong type for its declared (not dynamically typed) descriptor by a
+        :class:`WrongTypeParameter` naming the parameter and the types, for rclpy's own
+        parameters (``use_sim_time``) too.
+
+        :raises ParameterNotDeclaredException: naming the undeclared parameters (rclpy's
+            parameter service answers it as the request's reason).
+        """
+        unknown = [p.name for p in parameters if not self.has_parameter(p.name)]
+        if unknown:
             raise ParameterNotDeclaredException(unknown)
-        super()._check_undeclared_parameters(parameter_list)
+        checked = []
+        for parameter in parameters:
+            descriptor = self.describe_parameter(parameter.name)
+            if (not descriptor.dynamic_typing and parameter.type_ != Parameter.Type.NOT_SET
+                    and parameter.type_.value != descriptor.type):
+                reason = params.type_error(parameter.name, parameter.type_.name, parameter.value,
+                                           Parameter.Type(descriptor.type).name)
+                parameter = WrongTypeParameter(self.get_parameter(parameter.name), reason)
+            checked.append(parameter)
+        return checked
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> Any:
+        """Refuse a change with its reason (a wrong type marked by the pre-set callback, a
+        sample source or settings the change makes invalid); nothing is applied then."""
+        for parameter in parameters:
+            if isinstance(parameter, WrongTypeParameter):
+                return SetParametersResult(successful=False, reason=parameter.reason)
         changes = {p.name: p.value for p in parameters if p.name in SPECS}
         error = samples.source_error(changes.get("sample_destination_source", ""))
         if error:
@@ -59,6 +90,7 @@ class ParametersMixin:
         return SetParametersResult(successful=True)
 
     def _on_parameters_set(self, parameters: list[Parameter]) -> None:
+        """Apply an accepted change: ingestion, tf broadcast and the next rebuild."""
         changes = {p.name: p.value for p in parameters if p.name in SPECS}
         if not changes:
             return
