@@ -453,12 +453,10 @@ def test_a_tilted_plate_is_named_only_when_the_tilt_distorts_it(tmp_path, degree
 
 @pytest.mark.parametrize("case", ["volume", "drawing", "same-xy"])
 def test_z_that_is_no_tilt_is_not_named(tmp_path, case):
-    """A second review: the rule that weighed the 2D against the 3D mismatch pair by pair named
-    a volume turned about z only (noise: 53 %), a plate whose destination z are a drawing's 0
-    beside measured heights of +-10 mm (535 %), and divided by zero when the xy points were the
-    same in both frames (a traceback; the node built no model). None is named now: the 3D fit
-    turns them about z only, or its tilt is within what its own misfit allows, or the xy points
-    do not show it (benchmarks/tilt_check.py: none of 1,500 such cells)."""
+    """z that is no tilt is not named: a volume turned about z only, a plate whose destination z
+    are a drawing's 0 beside measured heights of +-10 mm, and xy points that are the same in both
+    frames (no division by zero). The 3D fit turns them about z only, or its tilt is within what
+    its own misfit allows, or the xy points do not show it."""
     rng = np.random.default_rng(3)
     p = np.c_[rng.uniform(0, 500, (40, 2)), np.zeros(40)]
     if case == "volume":
