@@ -25,6 +25,7 @@ from typing import Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .errors import RegistrationError
 from .constants import RESTORATIONS as METHODS
 from .gauss_newton import DIRECT_MAX_FIDUCIALS, gauss_newton_step
 from .mismatch import sigma_l_stages
@@ -165,7 +166,7 @@ def restore_rigid_body(working: ArrayLike, destination: ArrayLike, method: str =
     return RestorationResult(eps, tuple(step_eps), method, x, y, compute_sigma_l)
 
 
-class _Diverged(Exception):
+class _Diverged(RegistrationError):
     """An iterative step moved a fiducial farther than the limit."""
 
 

@@ -25,6 +25,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..core.errors import InputError
 from ..core.constants import DIMENSIONS
 from ..core.repeats import repeat_outlier, typical_spacing
 from ..core.sessions import SessionPlan, estimate_sessions, session_cells
@@ -41,7 +42,7 @@ MAX_CSV_BYTES = 1 << 30
 CONFLICT_FRACTION = 0.25
 
 
-class CsvError(ValueError):
+class CsvError(InputError):
     """A CSV file that cannot be used; the message names the file, row and column."""
 
 

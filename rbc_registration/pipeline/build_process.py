@@ -39,6 +39,7 @@ import sys
 import threading
 from typing import IO, Any, Callable, Optional
 
+from ..core.errors import OperationError
 from ..core.accumulator import FiducialSet
 from ..core.kriging import KrigingHyperparameters
 from .settings import PROCESS_MIN_FIDUCIALS, Settings
@@ -51,11 +52,11 @@ __all__ = ["PROCESS_MIN_FIDUCIALS", "BuildCancelled", "BuildProcessDied", "Proce
 CHILD_MODULE = "rbc_registration.pipeline.build_child"
 
 
-class BuildProcessDied(RuntimeError):
+class BuildProcessDied(OperationError):
     """The build process exited during a build, twice in a row (the message says how)."""
 
 
-class BuildCancelled(RuntimeError):
+class BuildCancelled(OperationError):
     """The builder was closed (the node shuts down) while the build ran in the child."""
 
 

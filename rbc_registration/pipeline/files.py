@@ -15,6 +15,7 @@ import fcntl
 import os
 import stat
 from typing import Optional
+from ..core.errors import InputError
 
 #: Files of ``state_dir`` are created with these permissions (the umask cannot widen them, and
 #: they are set again with ``fchmod``/``chmod`` so a restrictive umask cannot narrow them either).
@@ -23,11 +24,11 @@ DIR_MODE = 0o700
 LOCK_NAME = "lock"
 
 
-class NotARegularFile(ValueError):
+class NotARegularFile(InputError):
     """A ``state_dir`` file that is a symlink, FIFO, device or directory."""
 
 
-class StateDirBusy(ValueError):
+class StateDirBusy(InputError):
     """Another process (or node) holds the lock of ``state_dir``."""
 
 

@@ -10,10 +10,12 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..core.errors import OperationError
+
 NODE = "registration_node"
 
 
-class DemoError(RuntimeError):
+class DemoError(OperationError):
     """The demo could not complete; the message says which step and why."""
 
 
