@@ -21,12 +21,32 @@ INTERPOLATIONS = ("paper", "kriging")
 UNCORRECTED = "uncorrected"
 #: What the decision chooses between: the uncorrected registration or a corrected one.
 CANDIDATES = (UNCORRECTED,) + INTERPOLATIONS
-#: How the fiducials are split for cross-validation (:mod:`.crossval`).
-FOLD_KINDS = ("leave-one-out", "k-fold")
+
+
+class FoldKind(str, Enum):
+    """How the fiducials are split for cross-validation (:mod:`.crossval`): one fiducial (or
+    group) held out at a time, or k folds."""
+
+    LEAVE_ONE_OUT = "leave-one-out"
+    K_FOLD = "k-fold"
+
+
+#: The values of :class:`FoldKind`.
+FOLD_KINDS = tuple(kind.value for kind in FoldKind)
 #: Outcomes of the rho rule (paper section 6), see :func:`rbc_registration.core.noise.assess`.
 RECOMMENDATIONS = ("apply", "uncertain", "do_not_apply", "unknown")
-#: Where sigma came from: given by the user, estimated from repeats, or unknown.
-SIGMA_SOURCES = ("given", "repeats", "unknown")
+
+
+class SigmaSource(str, Enum):
+    """Where sigma came from: given by the user, estimated from repeats, or unknown."""
+
+    GIVEN = "given"
+    REPEATS = "repeats"
+    UNKNOWN = "unknown"
+
+
+#: The values of :class:`SigmaSource`.
+SIGMA_SOURCES = tuple(source.value for source in SigmaSource)
 #: Reasons a measurement is rejected (the counters of ``FiducialAccumulator.rejected``).
 REJECT_REASONS = ("frame", "nonfinite", "outlier", "malformed", "stale", "ambiguous",
                   "duplicate", "conflict")

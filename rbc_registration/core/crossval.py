@@ -34,7 +34,7 @@ from typing import Callable, Mapping, NamedTuple, Optional, Sequence, TypeVar, U
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import CANDIDATES, FOLD_KINDS, INTERPOLATIONS, UNCORRECTED
+from .constants import CANDIDATES, INTERPOLATIONS, UNCORRECTED, FoldKind
 from .interpolation import PaperInterpolator
 from .kriging import KrigingInterpolator
 from .groups import first_members, merge_labels
@@ -53,7 +53,7 @@ K_FOLDS = 10
 
 
 class FoldScheme(NamedTuple):
-    """How the fiducials are split: ``kind`` one of :data:`~.constants.FOLD_KINDS` and the number
+    """How the fiducials are split: ``kind`` one of :class:`~.constants.FoldKind` and the number
     of folds (J for leave-one-out)."""
 
     kind: str
@@ -64,7 +64,7 @@ class FoldScheme(NamedTuple):
     def describe(self) -> str:
         """E.g. ``leave-one-out (277 folds)``, ``leave-one-group-out (36 folds)`` or
         ``10-fold``."""
-        if self.kind == FOLD_KINDS[0]:
+        if self.kind == FoldKind.LEAVE_ONE_OUT.value:
             kind = "leave-one-group-out" if self.grouped else self.kind
             return f"{kind} ({self.n_folds} folds)"
         return f"{self.n_folds}-fold" + (" (whole groups)" if self.grouped else "")
@@ -74,8 +74,8 @@ def fold_scheme(count: int) -> FoldScheme:
     """The size rule: leave-one-out for ``count`` <= :data:`LOO_MAX_FIDUCIALS` fiducials,
     else :data:`K_FOLDS`-fold."""
     if count <= LOO_MAX_FIDUCIALS:
-        return FoldScheme(FOLD_KINDS[0], count)
-    return FoldScheme(FOLD_KINDS[1], K_FOLDS)
+        return FoldScheme(FoldKind.LEAVE_ONE_OUT.value, count)
+    return FoldScheme(FoldKind.K_FOLD.value, K_FOLDS)
 
 
 def held_out_units(working: NDArray[np.float64], destination: Optional[NDArray[np.float64]],
@@ -102,7 +102,7 @@ def fold_groups(working: NDArray[np.float64], scheme: FoldScheme,
     j = len(working)
     units = held_out_units(working, destination, groups)
     first = np.arange(j) if units is None else first_members(units)
-    if scheme.kind == FOLD_KINDS[0]:
+    if scheme.kind == FoldKind.LEAVE_ONE_OUT.value:
         return [np.flatnonzero(first == k) for k in range(j) if first[k] == k]
     radius = np.linalg.norm(working - working.mean(axis=0), axis=1)
     rank = np.empty(j, dtype=np.intp)
@@ -257,15 +257,15 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
     if "kriging" in candidates and kriging is None:
         unavailable["kriging"] = "no kriging model"
     groups = fold_groups(x, scheme, y, groups)
-    if scheme.kind == FOLD_KINDS[0]:        # units held out together: fewer folds than J
+    if scheme.kind == FoldKind.LEAVE_ONE_OUT:   # units held out together: fewer folds than J
         scheme = scheme._replace(n_folds=len(groups))
     held_out = _held_out(kriging, groups)
     scale = np.full(j, np.nan) if kriging is not None else None
     errors = {c: np.full(j, np.nan) for c in candidates if c not in unavailable}
     corrected = [c for c in errors if c in INTERPOLATIONS]
     fast_u = None
-    if (UNCORRECTED in errors and uncorrected_subset is None and scheme.kind == FOLD_KINDS[0]
-            and len(groups) == j):                  # one fiducial per fold: no twins
+    if (UNCORRECTED in errors and uncorrected_subset is None
+            and scheme.kind == FoldKind.LEAVE_ONE_OUT and len(groups) == j):  # one per fold
         fast_u = loo_rigid_errors(x, y)
         if fast_u is not None:
             errors[UNCORRECTED][:] = fast_u

@@ -9,7 +9,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import FOLD_KINDS, UNCORRECTED
+from .constants import UNCORRECTED, FoldKind
 from .crossval import FoldScheme, cross_validate
 from .groups import group_labels
 from .model import RbcModel
@@ -64,14 +64,14 @@ def leave_one_out(model: RbcModel) -> TargetErrors:
                          f"needs {d + 1}), got {j}")
     method = cfg.interpolation
     cv = model.decision.cross_validation
-    reusable = (cv.scheme.kind == FOLD_KINDS[0] and cfg.uncorrected_subset is None
+    reusable = (cv.scheme.kind == FoldKind.LEAVE_ONE_OUT.value and cfg.uncorrected_subset is None
                 and cfg.corrected_subset is None)
     if not (reusable and UNCORRECTED in cv.errors and method in cv.errors):
         labels = group_labels(model.groups, j)
         cv = cross_validate(model.working, model.destination, (UNCORRECTED, method),
                             restoration=cfg.restoration, steps=cfg.steps,
                             kriging=model.interpolators.get("kriging"),
-                            scheme=FoldScheme(FOLD_KINDS[0], j), groups=labels)
+                            scheme=FoldScheme(FoldKind.LEAVE_ONE_OUT.value, j), groups=labels)
     if cv.unavailable:
         name, why = next(iter(cv.unavailable.items()))
         raise ValueError(f"leave-one-out of {name}: {why}")

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .answers import TargetAnswer, TargetCorrections, TargetEvaluation
 from .config import ModelConfig
-from .constants import CANDIDATES, INTERPOLATIONS, SIGMA_SOURCES, UNCORRECTED, DecisionMode
+from .constants import CANDIDATES, INTERPOLATIONS, UNCORRECTED, DecisionMode, SigmaSource
 from .crossval import cross_validate, in_thread
 from .decision import Decision, decide
 from .groups import group_labels
@@ -181,11 +181,11 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     stats, sigma_est = resolve_repeat_stats(j, config.dimension, working_repeats,
                                             repeat_statistics)
     if config.known_sigma is not None:
-        sigma, source = config.known_sigma, SIGMA_SOURCES[0]
+        sigma, source = config.known_sigma, SigmaSource.GIVEN.value
     elif sigma_est:     # identical repeats give 0: no noise estimate (noise.identical_repeats)
-        sigma, source = sigma_est, SIGMA_SOURCES[1]
+        sigma, source = sigma_est, SigmaSource.REPEATS.value
     else:
-        sigma, source = None, SIGMA_SOURCES[2]
+        sigma, source = None, SigmaSource.UNKNOWN.value
 
     restoration = restore_rigid_body(x, y, config.restoration, config.steps)
     assessment = assess(restoration.sigma_l0, sigma, config.rho_reject, config.rho_apply)

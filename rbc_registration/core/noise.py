@@ -24,7 +24,7 @@ from typing import NamedTuple, Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import SIGMA_SOURCES, check_rho_thresholds
+from .constants import SigmaSource, check_rho_thresholds
 from .validation import as_points
 
 
@@ -166,7 +166,7 @@ def scattered_repeats(ids: Sequence[str], stats: RepeatStats, unit: str) -> Opti
             f"it: remove the bad measurement, or set the outlier distance below its offset")
 
 
-def identical_repeats(stats: RepeatStats, sigma_source: str = SIGMA_SOURCES[1]) -> Optional[str]:
+def identical_repeats(stats: RepeatStats, sigma_source: str = SigmaSource.REPEATS.value) -> Optional[str]:
     """The warning when the repeats of fiducials are identical to their first measurement
     (:func:`copied_repeats`: at least :data:`COPIED_SHARE` of the fiducials measured more than
     once): a copied measurement or coordinates rounded coarser than the noise. With every
@@ -174,14 +174,14 @@ def identical_repeats(stats: RepeatStats, sigma_source: str = SIGMA_SOURCES[1]) 
     0 is refused when given); with most, sigma from the repeats is too small. ``None`` otherwise
     (or without repeats).
 
-    :param sigma_source: the model's (:data:`~.constants.SIGMA_SOURCES`): when sigma was given
+    :param sigma_source: the model's (:class:`~.constants.SigmaSource`): when sigma was given
         the text says it is used, not that it is unknown or too small.
     """
     copied = int(copied_repeats(stats).sum())
     if not copied:
         return None
     measured = int((stats.counts >= 2).sum())
-    given = sigma_source == SIGMA_SOURCES[0]
+    given = sigma_source == SigmaSource.GIVEN.value
     cause = "one measurement copied, or coordinates rounded coarser than the noise?"
     if copied == measured:
         head = (f"the repeats of all {measured} fiducial(s) measured more than once are "
