@@ -1,30 +1,28 @@
-"""The measurement planner on the synthetic RA-like (2D) and A-like (3D) cells (issue 13).
+"""The measurement planner on the synthetic RA-like (2D) and A-like (3D) cells, as a user runs it.
 
-Run: ``.venv/bin/python benchmarks/plan_cells.py [--seeds 5] [--first-seed 0] [--cells RA,A]
+Run: ``.venv/bin/python benchmarks/plan_cells.py [--seeds 10] [--first-seed 0] [--cells RA,A]
 [--json out.json]``; the cells can run in parallel (one ``--cells`` and ``--json`` each) and be
 reported together with ``--load ra.json,a.json``.
 
 Per cell and seed, single measurements (the first measurement of every fiducial and target; the
-truth known): start from 10 fiducials drawn at random from the fiducial set, then add fiducials
-one at a time from the remaining fiducial locations (working frame) in
+truth known), sigma unknown, the model's defaults (``build_model`` with
+``ModelConfig(dimension=d)``: the ``cv`` decision, kriging hyper-parameters fitted with the
+noise): start from 10 fiducials drawn at random from the fiducial set, then add fiducials from
+the remaining fiducial locations (working frame) in
 
-- ``planner``: the planner's order, the cell's targets given (re-planned after every
-  measurement with the model rebuilt, hyper-parameters refitted);
-- ``planner (work volume)``: the same without targets (the work volume);
+- ``planner``: the plan's suggestions in batches of :data:`BATCH` (the cell's targets given, the
+  model rebuilt and the plan made again after each batch, as a user measures);
 - ``random``: a random order;
-- ``grid``: a space-filling order on the grid: each next fiducial is the remaining location
-  farthest from the fiducials so far (farthest-point).
+- ``farthest``: a space-filling order: each next fiducial is the remaining location farthest
+  from the fiducials so far (farthest-point).
 
-At every count from 10 to 60 the actual median TRE of the targets against the truth is taken
-with :func:`build` (the model the planner serves). The stopping rule's "enough" count is the
-first count at which the planner's plan says enough (default 2 %; 1 % and 0.5 % reported too;
-never while the decision serves the uncorrected registration without being confident or the
-bias length scale is below the fiducials' spacing;
-the planner's order is followed up to it, even beyond 60); its actual TRE is set against the TRE
-with all fiducials. The expected median
-TRE of the plan and the leave-one-out check (:func:`check_expected_error`) are recorded too.
-
-Prints Markdown tables; writes the figure (``--figure``, default benchmarks/plan_cells.png).
+The actual median TRE of the targets against the truth is taken at :data:`COUNTS` with the model
+the planner serves (``TargetCorrections.destination``). The planner's order is then followed with
+the default rules (``PlanConfig()``: within 10 % of every hole measured) until its plan says
+``enough``, measuring each batch only up to ``enough_after`` when the plan gives it; the TRE there
+is set against the TRE with every fiducial and the count at which the farthest-point order first
+reaches it. At :data:`CHECK_COUNTS` the plan's (calibrated) expected median target error is set
+against the actual one, with the error model check (:mod:`rbc_registration.core.model_check`).
 """
 
 from __future__ import annotations
@@ -38,29 +36,23 @@ import time
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+import scipy.stats  # noqa: E402
 
 from rbc_registration.core.model import ModelConfig, RbcModel, build_model  # noqa: E402
-from rbc_registration.core.model_planner import (check_expected_error,  # noqa: E402
-                                                 plan_from_model)
+from rbc_registration.core.model_planner import plan_from_model  # noqa: E402
 from rbc_registration.core.planner import PlanConfig  # noqa: E402
 from rbc_registration.core.synthetic import make_cell  # noqa: E402
 
-ORDERS = ("planner", "planner (work volume)", "random", "grid")
-#: The model every order is evaluated with (and the planner plans for): :func:`build`. With the
-#: decision of issue 9 in the model, its default mode decides what targets get.
-_DECISION = getattr(ModelConfig(), "decision", None)
-MODEL = ("kriging interpolation, iterative restoration (2 steps), sigma given (the cell's)"
-         + ("" if _DECISION is None else
-            f", decision mode {getattr(_DECISION, 'value', _DECISION)} (the default)"))
-CV_COUNTS = (10, 20, 40, 60)
-#: Stopping fractions reported; the default of PlanConfig (0.02) first, none above it (a held-back
-#: rule is read from the plan's own verdict at the default, run_planner).
-FRACTIONS = (0.02, 0.01, 0.005)
+ORDERS = ("planner", "random", "farthest")
+COUNTS = tuple(range(10, 61, 5))
+CHECK_COUNTS = (10, 15, 20, 30, 40, 60)
+BATCH = 5
+START = 10
 
 
-def build(x: np.ndarray, y: np.ndarray, sigma: float, dim: int) -> RbcModel:
-    """The registration model of ``MODEL`` from fiducials (working x, destination y)."""
-    return build_model(x, y, ModelConfig(dimension=dim, interpolation="kriging", sigma=sigma))
+def build(x: np.ndarray, y: np.ndarray, dim: int) -> RbcModel:
+    """The model a user gets with the defaults and sigma unknown."""
+    return build_model(x, y, ModelConfig(dimension=dim))
 
 
 class Cell:
@@ -75,13 +67,12 @@ class Cell:
         self.td = c.target_truth
 
     def model(self, idx) -> RbcModel:
-        return build(self.x[idx], self.y[idx], self.sigma, self.dim)
+        idx = list(idx)
+        return build(self.x[idx], self.y[idx], self.dim)
 
     def tre(self, model: RbcModel) -> float:
-        """Median TRE of the targets at the point the model serves: the decided one
-        (``destination``) when the model has the decision of issue 9, else the corrected one."""
-        tc = model.correct(self.tw)
-        served = getattr(tc, "destination", tc.corrected)
+        """Median TRE of the targets at the point the model serves."""
+        served = model.correct(self.tw).destination
         return float(np.median(np.linalg.norm(served - self.td, axis=1)))
 
 
@@ -96,99 +87,84 @@ def farthest_point_order(points: np.ndarray, start: list[int], count: int) -> li
     return order
 
 
-def run_fixed(cell: Cell, order: list[int], start: int, stop: int) -> list[float]:
-    return [cell.tre(cell.model(order[:j])) for j in range(start, stop + 1)]
-
-
-def run_planner(cell: Cell, start_idx: list[int], stop: int, targets, config: PlanConfig,
-                follow_to_enough: bool) -> dict:
-    """Follow the planner's suggestion one at a time; record actual and expected TRE, and the
-    count at which each stopping fraction of ``FRACTIONS`` first says enough."""
+def run_planner(cell: Cell, start_idx: list[int], config: PlanConfig) -> dict:
+    """Follow the planner in batches to the last of :data:`COUNTS` and on to its ``enough``."""
     chosen = list(start_idx)
-    tre, expected, cv, enough = [], [], {}, {}
+    tre, check, stop = {}, {}, None
     n_all = len(cell.x)
     while True:
         j = len(chosen)
         m = cell.model(chosen)
-        if j <= stop:
-            tre.append(cell.tre(m))
-        if j in CV_COUNTS and follow_to_enough:
-            check = check_expected_error(m)
-            cv[j] = {"expected": check.expected_median, "actual": check.actual_median}
         rest = np.setdiff1d(np.arange(n_all), chosen)
+        if j in COUNTS:
+            tre[j] = cell.tre(m)
         if len(rest) == 0:
+            stop = stop or {"count": j, "tre": cell.tre(m), "rule": "all measured"}
             break
-        p = plan_from_model(m, cell.x[rest], targets, config=config)
-        if j <= stop:
-            expected.append(p.expected_now)
-        fraction = float(p.gains.max() / p.expected_now)
-        if p.enough and fraction >= config.min_gain_fraction:
-            raise RuntimeError(f"the plan's own rule disagrees: {p.reason}")
-        # Gains below the plan's own threshold without "enough": the rule is held back (the
-        # decision unsure, or the bias unresolved), which holds for every smaller fraction too.
-        held = fraction < config.min_gain_fraction and not p.enough
-        for f in FRACTIONS:
-            if f not in enough and fraction < f and not held:
-                enough[f] = {"count": j, "tre": tre[-1] if j <= stop else cell.tre(m),
-                             "expected": p.expected_now, "expected_all": p.expected_with_all}
-        if j >= stop and (len(enough) == len(FRACTIONS) or not follow_to_enough):
+        p = plan_from_model(m, cell.x[rest], cell.tw, count=min(BATCH, len(rest)),
+                            config=config)
+        if j in CHECK_COUNTS:
+            mc = p.model_check
+            check[j] = {"expected": p.expected_now, "actual": tre[j],
+                        "with_all": p.expected_with_all, "ratio": mc.ratio,
+                        "trustworthy": mc.trustworthy}
+        if p.enough and stop is None:
+            stop = {"count": j, "tre": tre.get(j, cell.tre(m)), "rule": p.enough_rule,
+                    "expected": p.expected_now, "with_all": p.expected_with_all}
+        if stop is not None and j >= COUNTS[-1]:
             break
-        chosen.append(int(rest[p.sequence[0]]))
-    return {"tre": tre, "expected": expected, "enough": {str(f): e for f, e in enough.items()},
-            "cv": cv}
+        take = BATCH if stop is not None or not p.enough_after else p.enough_after
+        if j < COUNTS[-1]:                  # land on every count of COUNTS
+            take = min(take, min(c for c in COUNTS if c > j) - j)
+        chosen += [int(rest[k]) for k in p.ranked_candidates[:take]]
+    return {"tre": [tre[j] for j in COUNTS], "check": check, "stop": stop}
 
 
-def run_cell(name: str, seed: int, start: int, stop: int, config: PlanConfig) -> dict:
+def run_cell(name: str, seed: int, config: PlanConfig) -> dict:
     cell = Cell(name, seed)
     rng = np.random.default_rng([seed, 13])
     n = len(cell.x)
     perm = [int(k) for k in rng.permutation(n)]
-    start_idx = perm[:start]
-    out = {"all_tre": cell.tre(cell.model(np.arange(n))), "n_fiducials": n}
+    start_idx = perm[:START]
     t0 = time.perf_counter()
-    out["planner"] = run_planner(cell, start_idx, stop, cell.tw, config, True)
-    out["planner (work volume)"] = run_planner(cell, start_idx, stop, None, config, False)
-    out["random"] = {"tre": run_fixed(cell, perm, start, stop)}
-    out["grid"] = {"tre": run_fixed(cell, farthest_point_order(cell.x, start_idx, stop - start),
-                                    start, stop)}
+    out = {"all_tre": cell.tre(cell.model(range(n))), "n_fiducials": n}
+    out["planner"] = run_planner(cell, start_idx, config)
+    out["random"] = {"tre": [cell.tre(cell.model(perm[:j])) for j in COUNTS]}
+    far = farthest_point_order(cell.x, start_idx, n - START)
+    out["farthest"] = {"tre": [cell.tre(cell.model(far[:j])) for j in COUNTS]}
+    # the count at which the farthest-point order first reaches the planner's TRE at its stop
+    goal, reach = out["planner"]["stop"]["tre"], None
+    for j in range(START, n + 1):
+        if cell.tre(cell.model(far[:j])) <= goal:
+            reach = j
+            break
+    out["farthest_reach"] = reach
     out["seconds"] = time.perf_counter() - t0
     return out
 
 
-def mean_curve(runs: list[dict], order: str) -> np.ndarray:
-    return np.mean([r[order]["tre"] for r in runs], axis=0)
+def paired(runs: list[dict], order: str) -> list[tuple[float, float, float]]:
+    """Per count: mean of (planner - order) over the seeds, its standard error, the p-value."""
+    mine = np.array([r["planner"]["tre"] for r in runs])
+    diff = mine - np.array([r[order]["tre"] for r in runs])
+    se = diff.std(axis=0, ddof=1) / np.sqrt(len(runs))
+    p = [scipy.stats.ttest_1samp(diff[:, i], 0.0).pvalue for i in range(diff.shape[1])]
+    return [(float(diff[:, i].mean()), float(se[i]), float(p[i])) for i in range(diff.shape[1])]
 
 
-def above(runs: list[dict], order: str, counts: np.ndarray) -> str:
-    """Counts where ``order``'s mean is above the better of random and grid, each with the
-    paired mean difference and its standard error over the seeds."""
-    mine = np.array([r[order]["tre"] for r in runs])
-    rand = np.array([r["random"]["tre"] for r in runs])
-    grid = np.array([r["grid"]["tre"] for r in runs])
-    best = np.where(rand.mean(axis=0) <= grid.mean(axis=0), rand, grid)
-    diff = mine - best
-    se = diff.std(axis=0, ddof=1) / np.sqrt(len(runs)) if len(runs) > 1 else np.full(
-        diff.shape[1], np.nan)
-    out = [f"{j} (+{diff[:, i].mean():.4f} ± {se[i]:.4f})" for i, j in enumerate(counts)
-           if diff[:, i].mean() > 0]
-    return ", ".join(out) or "none"
-
-
-#: Count ranges of the paired summary: the first suggestions (the decision often unsure) and the
-#: rest (every order near the floor that the targets' own noise sets on a noise-dominated cell).
+#: The ranges of counts :func:`paired_summary` averages over.
 PAIRED_RANGES = ((11, 19), (20, 60))
 
 
-def paired_summary(runs: list[dict], counts: np.ndarray) -> list[str]:
+def paired_summary(runs: list[dict], counts: np.ndarray,
+                   orders: tuple[str, ...] = ("farthest", "random")) -> list[str]:
     """The planner against each fixed order, paired by seed: per range of counts, the mean over
     the seeds of (planner - order) averaged over the range's counts, its standard error, a
     two-sided one-sample t-test p-value, and the largest t of a count where the planner's mean is
     above (a t near 1 is a tie; 2 or more would be a real loss)."""
-    import scipy.stats
-
     mine = np.array([r["planner"]["tre"] for r in runs])
     lines = []
-    for order in ("grid", "random"):
+    for order in orders:
         diff = mine - np.array([r[order]["tre"] for r in runs])
         se = diff.std(axis=0, ddof=1) / np.sqrt(len(runs))
         t = [diff[:, i].mean() / se[i] for i in range(len(counts))
@@ -210,142 +186,88 @@ def paired_summary(runs: list[dict], counts: np.ndarray) -> list[str]:
     return lines
 
 
-def report(name: str, runs: list[dict], start: int, stop: int) -> list[str]:
-    counts = np.arange(start, stop + 1)
-    curves = {o: mean_curve(runs, o) for o in ORDERS}
-    expected = np.mean([r["planner"]["expected"] for r in runs], axis=0)
+def report(name: str, runs: list[dict]) -> list[str]:
+    curves = {o: np.mean([r[o]["tre"] for r in runs], axis=0) for o in ORDERS}
+    vs_random, vs_far = paired(runs, "random"), paired(runs, "farthest")
     lines = [f"### {name}: mean over {len(runs)} seeds of the median target TRE (mm)", "",
-             "| fiducials | " + " | ".join(ORDERS) + " | planner: expected |",
-             "|---" * (len(ORDERS) + 2) + "|"]
-    for j in sorted(set(range(start, stop + 1, 5)) | {stop}):
-        i = j - start
+             "| fiducials | planner | random | farthest | planner - random (± SE) | "
+             "planner - farthest (± SE, p) |", "|---|---|---|---|---|---|"]
+    for i, j in enumerate(COUNTS):
+        a, b = vs_random[i], vs_far[i]
         lines.append(f"| {j} | " + " | ".join(f"{curves[o][i]:.4f}" for o in ORDERS)
-                     + f" | {expected[i]:.4f} |")
-    worse = above(runs, "planner", counts)
-    worse_wv = above(runs, "planner (work volume)", counts)
-    target = curves["random"][-1]
-    reach = next((int(j) for j, p in zip(counts, curves["planner"]) if p <= target), None)
-    reach_wv = next((int(j) for j, p in zip(counts, curves["planner (work volume)"])
-                     if p <= target), None)
-    lines += ["", f"- counts {start}-{stop} where the planner's mean is above the better of "
-              f"random and grid (paired difference ± its standard error, mm): {worse}; "
-              f"planner (work volume): {worse_wv}",
-              f"- random order with {stop} fiducials: {target:.4f} mm; the planner first reaches "
-              f"it at {reach} fiducials, the planner (work volume) at {reach_wv}",
-              *(paired_summary(runs, counts) if len(runs) > 1 else []),
-              "", "Stopping rule (planner order, targets given): the first count at which the "
-              "best candidate is expected to gain less than the fraction of the expected median "
-              f"TRE; mean [min-max] over the seeds; all fiducials: {runs[0]['n_fiducials']}.",
-              "", "| fraction | enough at | actual TRE there | actual TRE, all fiducials | "
-              "there / all | expected there | expected with all (model at the stop) | "
-              "expected with all / there |", "|---|---|---|---|---|---|---|---|"]
-    for f in FRACTIONS:
-        e = [r["planner"]["enough"].get(str(f)) for r in runs]
-        if any(x is None for x in e):
-            lines.append(f"| {f:g} | not reached in every seed | | | | | | |")
-            continue
-        count = np.array([x["count"] for x in e])
-        ratio = np.array([x["tre"] / r["all_tre"] for x, r in zip(e, runs)])
-        pred = np.array([x["expected_all"] / x["expected"] for x in e])
-        lines.append(
-            f"| {f:g} | {count.mean():.1f} [{count.min()}-{count.max()}] | "
-            f"{np.mean([x['tre'] for x in e]):.4f} | {np.mean([r['all_tre'] for r in runs]):.4f} "
-            f"| {ratio.mean():.3f} [{ratio.min():.3f}-{ratio.max():.3f}] | "
-            f"{np.mean([x['expected'] for x in e]):.4f} | "
-            f"{np.mean([x['expected_all'] for x in e]):.4f} | {pred.mean():.3f} |")
-    lines += ["", "Leave-one-out check of the expected error (planner order, mean over seeds): ",
-              "", "| fiducials | expected LOO median | actual LOO median | ratio |",
-              "|---|---|---|---|"]
-    for j in CV_COUNTS:
-        if j > stop:
-            continue
-        ex = np.mean([r["planner"]["cv"][j]["expected"] for r in runs])
-        ac = np.mean([r["planner"]["cv"][j]["actual"] for r in runs])
-        lines.append(f"| {j} | {ex:.4f} | {ac:.4f} | {ac / ex:.3f} |")
+                     + f" | {a[0]:+.4f} ± {a[1]:.4f} | {b[0]:+.4f} ± {b[1]:.4f}, "
+                       f"p = {b[2]:.2g} |")
+    above_r = [j for j, a in zip(COUNTS, vs_random) if a[0] > 0]
+    above_f = [j for j, b in zip(COUNTS, vs_far) if b[0] > 0 and b[2] < 0.05]
+    lines += ["", f"- counts where the planner's mean is above random's: "
+              f"{', '.join(map(str, above_r)) or 'none'}; significantly above farthest-point "
+              f"(paired, p < 0.05): {', '.join(map(str, above_f)) or 'none'}"]
+    lines += paired_summary(runs, np.array(COUNTS))
+    stop = [r["planner"]["stop"] for r in runs]
+    count = np.array([s["count"] for s in stop])
+    ratio = np.array([s["tre"] / r["all_tre"] for s, r in zip(stop, runs)])
+    reach = [r["farthest_reach"] for r in runs]
+    rules = {}
+    for s in stop:
+        rules[s["rule"]] = rules.get(s["rule"], 0) + 1
+    lines += ["", f"First `enough` with the defaults (within 10 %), planner order; mean "
+              f"[min-max] over the seeds; all fiducials: {runs[0]['n_fiducials']}.", "",
+              "| enough at | TRE there (mm) | TRE, every fiducial (mm) | there / every | "
+              "farthest-point reaches that TRE at | rule |", "|---|---|---|---|---|---|",
+              f"| {count.mean():.1f} [{count.min()}-{count.max()}] | "
+              f"{np.mean([s['tre'] for s in stop]):.4f} | "
+              f"{np.mean([r['all_tre'] for r in runs]):.4f} | {ratio.mean():.3f} "
+              f"[{ratio.min():.3f}-{ratio.max():.3f}] | "
+              + (f"{np.mean([v for v in reach if v]):.1f} [{min(v for v in reach if v)}-"
+                 f"{max(v for v in reach if v)}]" if any(reach) else "-")
+              + (f" (not reached in {sum(v is None for v in reach)})" if None in reach else "")
+              + f" | {', '.join(f'{k} {v}' for k, v in rules.items())} |",
+              "", "Expected (the plan's, calibrated) against actual median target error, planner "
+              "order, mean over the seeds:", "",
+              "| fiducials | expected | actual | expected / actual (mean of the seeds' ratios) | "
+              "calibration (cross-validated / expected held-out) | trusted |",
+              "|---|---|---|---|---|---|"]
+    for j in CHECK_COUNTS:
+        c = [r["planner"]["check"][str(j)] if str(j) in r["planner"]["check"]
+             else r["planner"]["check"][j] for r in runs]
+        lines.append(f"| {j} | {np.mean([x['expected'] for x in c]):.4f} | "
+                     f"{np.mean([x['actual'] for x in c]):.4f} | "
+                     f"{np.mean([x['expected'] / x['actual'] for x in c]):.3f} | "
+                     f"{np.mean([x['ratio'] for x in c]):.3f} | "
+                     f"{sum(x['trustworthy'] for x in c)} of {len(c)} |")
     return lines
-
-
-def figure(results: dict, start: int, stop: int, path: str) -> None:
-    import matplotlib
-    import matplotlib.ticker
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, len(results), figsize=(6.2 * len(results), 4.4))
-    counts = np.arange(start, stop + 1)
-    styles = {"planner": "C0-", "planner (work volume)": "C0:", "random": "C1-", "grid": "C2-"}
-    for ax, (name, runs) in zip(np.atleast_1d(axes), results.items()):
-        for o in ORDERS:
-            ax.plot(counts, mean_curve(runs, o), styles[o], label=o)
-        ax.plot(counts, np.mean([r["planner"]["expected"] for r in runs], axis=0), "C0--",
-                lw=0.8, label="planner: expected (model, before measuring)")
-        ax.axhline(np.mean([r["all_tre"] for r in runs]), color="0.5", lw=0.8,
-                   label="all fiducials")
-        planner = mean_curve(runs, "planner")
-        for f, marker in zip(FRACTIONS, "ovs"):
-            e = [r["planner"]["enough"].get(str(f)) for r in runs]
-            if all(x is not None for x in e):
-                n = float(np.mean([x["count"] for x in e]))
-                if n <= stop:
-                    ax.plot(n, np.interp(n, counts, planner), "C3" + marker, ms=7,
-                            label=f"'enough' at {100 * f:g} % (mean count)")
-        ax.set_title(f"{name}: mean of {len(runs)} seeds")
-        ax.set_xlabel("fiducials measured")
-        ax.set_ylabel("median target TRE (mm)")
-        ax.set_yscale("log")
-        ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-        ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.2f"))
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-
-
-def load(path: str) -> dict:
-    """Results written by ``--json`` ({cell: [run per seed]}), with the integer fiducial
-    counts JSON turned into strings restored."""
-    with open(path) as f:
-        results = json.load(f)
-    for runs in results.values():
-        for run in runs:
-            for order in run.values():
-                if isinstance(order, dict) and "cv" in order:
-                    order["cv"] = {int(k): v for k, v in order["cv"].items()}
-    return results
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", default="RA,A")
-    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. + seeds - 1")
-    ap.add_argument("--start", type=int, default=10)
-    ap.add_argument("--stop", type=int, default=60)
-    ap.add_argument("--figure", default=os.path.join(os.path.dirname(__file__), "plan_cells.png"))
     ap.add_argument("--json", default=None)
     ap.add_argument("--load", default=None,
-                    help="comma-separated --json files of earlier runs (e.g. one per cell, run "
-                         "in parallel): report them together instead of running")
+                    help="comma-separated --json files of earlier runs: report them together")
     args = ap.parse_args(argv)
     config = PlanConfig()
     results: dict = {}
-    print(f"Model: {MODEL}. Stopping rule: min_gain_fraction {config.min_gain_fraction}, "
-          f"min_gain_length {config.min_gain_length}.\n")
+    print(f"Model: build_model defaults, sigma unknown, single measurements. Rules: within "
+          f"{config.within}, min_gain_fraction {config.min_gain_fraction}; batches of {BATCH}.\n")
     if args.load:
         for path in args.load.split(","):
-            results.update(load(path))
+            with open(path) as f:
+                results.update(json.load(f))
     else:
         for name in args.cells.split(","):
             results[name] = []
             for seed in range(args.first_seed, args.first_seed + args.seeds):
-                r = run_cell(name, seed, args.start, args.stop, config)
-                print(f"{name} seed {seed}: {r['seconds']:.0f} s", file=sys.stderr)
+                r = run_cell(name, seed, config)
+                print(f"{name} seed {seed}: {r['seconds']:.0f} s, stop "
+                      f"{r['planner']['stop']['count']}", file=sys.stderr)
                 results[name].append(r)
+                if args.json:
+                    with open(args.json, "w") as f:
+                        json.dump(results, f, indent=1, default=float)
     for name, runs in results.items():
-        print("\n".join(report(name, runs, args.start, args.stop)) + "\n")
-    figure(results, args.start, args.stop, args.figure)
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(results, f, indent=1, default=float)
+        print("\n".join(report(name, runs)) + "\n")
     return 0
 
 

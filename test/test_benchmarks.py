@@ -73,21 +73,22 @@ def test_memory_benchmark_runs_in_process():
 
 def test_the_planner_cells_paired_summary_tells_a_tie_from_a_lead():
     """benchmarks/plan_cells.paired_summary on made-up curves: the planner 0.01 mm below random
-    (with a little scatter) is a lead (tiny p, no count above); grid offsets by seed of mean
-    0.5 µm against a scatter of 2-3 µm are a tie (p ~ 0.6); a count made 50 µm worse in one
+    (with a little scatter) is a lead (tiny p, no count above); farthest-point offsets by seed
+    of mean 0.5 µm against a scatter of 2-3 µm are a tie (p ~ 0.6); a count made 50 µm worse in one
     seed of six is above, with t 0.99 (mean 7.83, SE 7.89 µm)."""
     import numpy as np
     import plan_cells
 
     counts = np.arange(10, 61)
     base = np.linspace(0.2, 0.1, len(counts))
-    grid_off = np.array([0.003, -0.001, 0.002, -0.004, 0.001, 0.002])     # mean 0.5 µm
+    far_off = np.array([0.003, -0.001, 0.002, -0.004, 0.001, 0.002])      # mean 0.5 µm
     rand_off = 0.01 + np.array([0.001, -0.001, 0.0, 0.0005, -0.0005, 0.0])
     runs = [{"planner": {"tre": list(base)}, "random": {"tre": list(base + rand_off[s])},
-             "grid": {"tre": list(base + grid_off[s])}} for s in range(6)]
+             "farthest": {"tre": list(base + far_off[s])}} for s in range(6)]
     grid, rand = plan_cells.paired_summary(runs, counts)
-    assert grid.startswith("- planner - grid, paired over 6 seeds: counts 11-19: -0.50 ± 1.06 µm "
-                           "(p = 0.66); counts 20-60: -0.50 ± 1.06 µm (p = 0.66)"), grid
+    assert grid.startswith("- planner - farthest, paired over 6 seeds: counts 11-19: "
+                           "-0.50 ± 1.06 µm (p = 0.66); counts 20-60: -0.50 ± 1.06 µm "
+                           "(p = 0.66)"), grid
     assert grid.endswith("counts above: 0, largest t there -")
     assert rand.startswith("- planner - random, paired over 6 seeds: counts 11-19: -10.00 ± 0.29 "
                            "µm (p = 3.8e-07)"), rand

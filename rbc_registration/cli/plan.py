@@ -19,7 +19,8 @@ from .options import (add_model_options, non_negative, output_file, refuse_outpu
 #: Suggestions made when ``--count`` is not given (fewer when there are fewer candidates).
 DEFAULT_COUNT = 5
 #: The option of each PlanConfig field the command sets.
-_OPTIONS = {"min_gain_fraction": "--min-gain-fraction", "min_gain_length": "--min-gain",
+_OPTIONS = {"within": "--within", "min_gain_fraction": "--min-gain-fraction",
+            "min_gain_length": "--min-gain",
             "candidate_repeats": "--candidate-repeats", "target_repeats": "--target-repeats"}
 
 
@@ -30,16 +31,21 @@ def add_parser(sub: Any) -> None:
     p.add_argument("fiducials", type=Path, help="CSV: id,wx,wy,wz,dx,dy,dz (2D: no wz,dz): the "
                                                 "fiducials measured so far")
     p.add_argument("--candidates", type=Path, required=True,
-                   help="CSV: id,wx,wy[,wz]: locations that could be measured next (working "
-                        "frame; approximate is enough)")
+                   help="CSV: id,wx,wy[,wz][,group]: locations that could be measured next "
+                        "(working frame; approximate is enough); a group (e.g. a robot pose) "
+                        "is ranked and measured as a whole")
     p.add_argument("--targets", type=Path, help="CSV: id,wx,wy[,wz]: the targets that matter "
                                                 "(default: the work volume)")
     p.add_argument("--count", type=int, help=f"suggestions in order, each conditioned on the "
                                              f"previous ones (default {DEFAULT_COUNT}, at most "
                                              f"the candidates)")
-    p.add_argument("--min-gain-fraction", type=float, default=0.02, metavar="F",
-                   help="enough when the best candidate gains less than this fraction of the "
-                        "expected median target error (default 0.02)")
+    p.add_argument("--within", type=float, default=0.10, metavar="F",
+                   help="enough when the expected median target error is within this fraction "
+                        "of what measuring every candidate is expected to give (default 0.10; "
+                        "0: off)")
+    p.add_argument("--min-gain-fraction", type=float, default=0.0, metavar="F",
+                   help="... or when the best next candidate (or group) gains less than this "
+                        "fraction of the expected median target error (default 0: off)")
     p.add_argument("--min-gain", type=float, default=0.0, metavar="LENGTH",
                    help="... or less than this length, unit of the files (default 0: off)")
     add_model_options(p, "default: 3 if the file has z", "the file's unit", defaults=True)
@@ -67,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from ..core.model import build_model
-    from ..core.model_planner import error_model_from, plan_from_model
+    from ..core.model_planner import calibrated, plan_from_model
     from ..core.planner import PlanConfig, overlap_notes, typical_repeats
     from ..io.csv_io import read_fiducials, read_targets, target_sessions
     from ..io.plan_report import format_plan, plan_report
@@ -82,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
                                [("fiducials", args.fiducials), ("--candidates", args.candidates),
                                 ("--targets", args.targets)])
     try:
-        config = PlanConfig(min_gain_fraction=args.min_gain_fraction,
+        config = PlanConfig(within=args.within, min_gain_fraction=args.min_gain_fraction,
                             min_gain_length=args.min_gain,
                             candidate_repeats=args.candidate_repeats,
                             target_repeats=args.target_repeats)
@@ -102,12 +108,15 @@ def run(args: argparse.Namespace) -> int:
     if tgt is not None and args.target_repeats is None:
         # the targets file's own rows per id: how often each target is measured
         config = replace(config, target_repeats=typical_repeats(tgt.counts))
-    count = min(DEFAULT_COUNT, len(cand.ids)) if args.count is None else args.count
+    units = len(set(g or f"\0{k}" for k, g in enumerate(cand.groups))) if cand.groups \
+        else len(cand.ids)
+    count = min(DEFAULT_COUNT, units) if args.count is None else args.count
     model = build_model(fid.working, fid.destination, model_config(args, fid.dimension),
                         ids=fid.ids, working_repeats=fid.working_repeats, groups=fid.groups)
-    em = error_model_from(model)
+    groups = cand.groups if cand.groups is not None and any(cand.groups) else None
+    em, check = calibrated(model)
     plan = plan_from_model(model, cand.working, tgt.working if tgt else None, count=count,
-                           config=config, error_model=em)
+                           config=config, error_model=em, check=check, groups=groups)
     _warn_unit_mismatch(model.working, cand.working, tgt.working if tgt else None)
     warn_model("plan", model, args.unit)
     report = plan_report(plan, cand.ids, em, config, args.unit)
@@ -118,11 +127,21 @@ def run(args: argparse.Namespace) -> int:
     if args.figure:
         from ..io.figures import plan_figure
         counts, curve = plan.error_curve
-        plan_figure(args.figure, model.working, cand.working, plan.gains, plan.sequence,
+        gains = [plan.gains[u] for u in _unit_of(plan, len(cand.ids))]
+        plan_figure(args.figure, model.working, cand.working, gains, plan.ranked_candidates,
                     counts, curve, args.unit, tgt.working if tgt else None,
                     plan.expected_with_all)
         print(f"wrote {terminal(args.figure)}")
     return 0
+
+
+def _unit_of(plan: Any, count: int) -> list[int]:
+    """The unit (group) of each of ``count`` candidates of ``plan``."""
+    out = list(range(count))
+    for u, members in enumerate(plan.members):
+        for c in members:
+            out[c] = u
+    return out
 
 
 def _warn_unit_mismatch(fiducials: Any, candidates: Any, targets: Any) -> None:

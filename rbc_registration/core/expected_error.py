@@ -147,6 +147,32 @@ class BiasPosterior:
             out = out + w * np.maximum(self.var_p[a][None, :] - (cov * cov).T / den[:, None], 0.0)
         return out
 
+    def after_units(self, members: NDArray[np.intp]) -> NDArray[np.float64]:
+        """(U, K) summed posterior variance after adding each unit's candidates together:
+        ``members`` (U, m) candidate indices per unit, padded with -1. Per component, the
+        posterior given a unit G is var(T) - diag(cov(T, G) (cov(G, G) + noise)^-1 cov(G, T))
+        (a rank-m update; m = 1 is :meth:`after_each`)."""
+        used = members >= 0
+        at = np.maximum(members, 0)
+        pts = self.candidates[at]                                     # (U, m, d)
+        gap = np.linalg.norm(pts[:, :, None, :] - pts[:, None, :, :], axis=-1)
+        prior = self.s2 * _matern52(gap, self.length)                 # (U, m, m)
+        pair = used[:, :, None] & used[:, None, :]
+        eye = np.eye(members.shape[1], dtype=bool)[None]
+        out = 0.0
+        for a, w in enumerate(self.weight):
+            wc = self.w_c[a][:, at]                                   # (J, U, m)
+            cov_gg = prior - np.einsum("jui,juk->uik", wc, wc)
+            for u in self.updates[a]:
+                cov_gg = cov_gg - u[at][:, :, None] * u[at][:, None, :]
+            cov_gg = np.where(pair, cov_gg, 0.0) + np.where(
+                eye, np.where(used, self.candidate_noise[a], 1.0)[:, :, None], 0.0)
+            cov_pg = np.where(used[:, None, :], self.cov_pc[a][:, at].transpose(1, 0, 2), 0.0)
+            solved = np.linalg.solve(cov_gg, cov_pg.transpose(0, 2, 1))  # (U, m, K)
+            drop = np.einsum("ukm,umk->uk", cov_pg, solved)
+            out = out + w * np.maximum(self.var_p[a][None, :] - drop, 0.0)
+        return out
+
     def add(self, c: int) -> None:
         """Condition on candidate ``c`` having been measured (rank-one update, per component)."""
         prior_row = self.s2 * _matern52(cdist(self.candidates[c:c + 1], self.candidates),

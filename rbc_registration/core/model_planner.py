@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple, Optional
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,6 +31,7 @@ from .evaluation import leave_one_out
 from .expected_error import ExpectedErrorModel, expected_squared_errors, pooled_median
 from .kriging import KrigingInterpolator
 from .model import RbcModel
+from .model_check import ModelCheck, check_model, units_to_trust
 from .planner import (DEFAULT_PLAN_CONFIG, MeasurementPlan, PlanConfig, measurement_repeats,
                       plan, work_volume)
 from .validation import as_points
@@ -138,15 +139,47 @@ def decisive_candidate(model: RbcModel, candidates: ArrayLike) -> Optional[tuple
     return k, float(z[k])
 
 
+def calibrated(model: RbcModel, error_model: Optional[ExpectedErrorModel] = None
+               ) -> tuple[ExpectedErrorModel, ModelCheck]:
+    """The planning error model (default ``error_model_from(model)``) with its calibration set
+    to the ratio of the decision's cross-validated held-out errors to its expected ones
+    (:func:`.model_check.check_model`; 1 when the check is not available), and the check."""
+    em = error_model_from(model) if error_model is None else error_model
+    check = check_model(model, em)
+    return dataclasses.replace(em, calibration=check.ratio), check
+
+
+def _to_trust(check: ModelCheck, grouped: bool) -> str:
+    """What to measure so that the error model can be trusted (:mod:`.model_check`)."""
+    more = units_to_trust(check)
+    if more:
+        return (f"measure at least {more} more {'groups' if grouped else 'fiducials'} (the "
+                f"suggestions first) and plan again")
+    return "measure the suggestions and plan again (the error model is refitted with them)"
+
+
 def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[ArrayLike] = None,
                     *, count: int = 1, config: PlanConfig = DEFAULT_PLAN_CONFIG,
-                    error_model: Optional[ExpectedErrorModel] = None) -> MeasurementPlan:
+                    error_model: Optional[ExpectedErrorModel] = None,
+                    check: Optional[ModelCheck] = None,
+                    groups: Optional[Sequence[str]] = None) -> MeasurementPlan:
     """:func:`plan` from the model's fiducials, repeats and error model (or ``error_model``;
-    default the planning one, ``error_model_from(model)``: corrected registration). While
-    :func:`held_back_by_decision` gives a reason, ``enough`` is False, ``enough_after`` is None
-    (when the decision will apply corrections is not known), the first suggestion is
-    :func:`decisive_candidate` and the reason says all of this."""
-    em = error_model_from(model) if error_model is None else error_model
+    default the planning one, ``error_model_from(model)``: corrected registration), calibrated
+    against the decision's cross-validated held-out errors (:func:`calibrated`; ``check``: the
+    check already made for this ``error_model``, which then is taken as calibrated). ``enough``
+    is never said while the check does not trust the error model (the reason says what to
+    measure), nor while :func:`held_back_by_decision` gives a reason: then ``enough_after`` is
+    None (when the decision will apply corrections is not known), the first suggestion is
+    :func:`decisive_candidate` and the reason says all of this. ``groups``: a label per
+    candidate, candidates measured together (:func:`plan`)."""
+    if check is None:
+        em, check = calibrated(model, error_model)
+    else:
+        em = error_model_from(model) if error_model is None else error_model
+    holds = []
+    if not check.trustworthy:
+        holds.append("the error model is not yet trustworthy (" + (
+            check.note if check.note else "not checked") + ")")
     held = held_back_by_decision(model)
     decisive = decisive_candidate(model, candidates) if held is not None else None
     if decisive is not None and decisive[1] < MIN_DECISIVE_Z:
@@ -154,8 +187,14 @@ def plan_from_model(model: RbcModel, candidates: ArrayLike, targets: Optional[Ar
     if decisive is not None:
         held += (f"; the first suggestion (#{decisive[0]}) is where the correction is expected "
                  f"largest against its uncertainty ({decisive[1]:.3g} sigma), to test it")
-    return plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
-                config=config, first=None if decisive is None else decisive[0], held_back=held)
+    if held is not None:
+        holds.append(held)
+    to_measure = _to_trust(check, groups is not None and model.groups is not None) \
+        if not check.trustworthy else ""
+    p = plan(model.working, candidates, em, targets, count=count, repeats=model.counts,
+             config=config, first=None if decisive is None else decisive[0],
+             held_back="; ".join(holds) or None, groups=groups, to_measure=to_measure)
+    return p._replace(model_check=check)
 
 
 def expected_target_error(model: RbcModel, targets: Optional[ArrayLike] = None, *,

@@ -9,11 +9,17 @@ hyper-parameters, never on values not yet measured, so no candidate has to be me
 scored. Without targets the error is taken over the work volume: a regular grid in the bounding
 box of the fiducials and candidates, kept inside their convex hull (:func:`work_volume`).
 
-Stopping rule: the plan says ``enough`` when the best candidate is expected to reduce the median
-TRE by less than ``min_gain_fraction`` of it (default 2 %) or by less than ``min_gain_length``
-(default 0: off). ``expected_after`` is the expected error as a function of the number of
-fiducials along the suggestions. :mod:`.model_planner` plans from a built model and checks the
-expected error against leave-one-out.
+Candidates may come in groups (``groups``: a label per candidate, e.g. the robot pose that
+measures them together): a group is ranked and measured as a whole, its gain the expected
+reduction with all its candidates measured (a rank-m update), and the sequence is of groups.
+
+Stopping rules (:mod:`.stopping`): ``enough`` when the expected median TRE now is within
+``within`` (default 10 %) of what measuring every candidate is expected to give, or when the best
+next unit is expected to gain less than ``min_gain_fraction`` of it or less than
+``min_gain_length`` (both default 0: off). ``expected_after`` is the expected error as a function
+of the number of fiducials along the suggestions. :mod:`.model_planner` plans from a built model,
+its expected errors calibrated against the decision's cross-validated ones and the stopping rules
+held back until that check trusts the error model (:mod:`.model_check`).
 
 Cost: one Cholesky factorisation of the J fiducials per noise axis (O(J^3); one axis when the
 noise is isotropic), O((K + C) J^2) to condition the K points and C candidates on them, then
@@ -30,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple, Optional, Sequence
+from typing import Any, NamedTuple, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,6 +46,7 @@ from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
                              pooled_median, target_noise)
 from .interpolation import HullTest
+from .stopping import verdict
 from .repeats import TWIN_FRACTION, same_place_limit, typical_spacing
 from .validation import as_points, check_spread, rounding
 
@@ -48,12 +55,18 @@ from .validation import as_points, check_spread, rounding
 ALL_CANDIDATES_MAX = 2000
 
 
+#: The largest ``within``: 10 x the best error is no longer "close to the best".
+MAX_WITHIN = 10.0
+
+
 @dataclass(frozen=True)
 class PlanConfig:
     """How a plan is made (lengths in the unit of the points).
 
-    :ivar min_gain_fraction: ``enough`` when the best candidate gains less than this fraction of
-        the expected median TRE (default 0.02).
+    :ivar within: ``enough`` when the expected median TRE is within this fraction of the one
+        expected with every candidate measured (default 0.10; 0: off).
+    :ivar min_gain_fraction: ... or when the best next unit gains less than this fraction of
+        the expected median TRE (default 0: off).
     :ivar min_gain_length: ... or less than this length (default 0: off).
     :ivar work_volume_points: size of the grid sampling the work volume when no targets are
         given (before clipping to the convex hull).
@@ -63,8 +76,9 @@ class PlanConfig:
     :ivar target_repeats: measurements that will be averaged into each target; None: the same.
     """
 
-    min_gain_fraction: float = 0.02
+    min_gain_fraction: float = 0.0
     min_gain_length: float = 0.0
+    within: float = 0.10
     work_volume_points: int = 400
     candidate_repeats: Optional[int] = None
     target_repeats: Optional[int] = None
@@ -76,6 +90,9 @@ class PlanConfig:
         g = self.min_gain_length
         if not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0:
             raise ValueError(f"min_gain_length must be a finite length >= 0, got {g!r}")
+        w = self.within
+        if not isinstance(w, (int, float)) or not math.isfinite(w) or not 0 <= w <= MAX_WITHIN:
+            raise ValueError(f"within must be in [0, {MAX_WITHIN:g}], got {w!r}")
         _check_count(self.work_volume_points, "work_volume_points")
         for name in ("candidate_repeats", "target_repeats"):
             if getattr(self, name) is not None:
@@ -188,20 +205,20 @@ def overlap_notes(fiducials: NDArray[np.float64], fiducial_ids: Sequence[str],
 class MeasurementPlan(NamedTuple):
     """The ranked candidates and the stopping rule (lengths in the unit of the points).
 
-    :ivar sequence: candidate indices to measure, in order (greedy, each conditioned on the
-        previous ones); ``len == count``.
+    :ivar sequence: units to measure, in order (greedy, each conditioned on the previous ones);
+        ``len == count``. A unit is a candidate index without groups, else the index of a group
+        in ``unit_labels`` (its candidates: ``members``).
     :ivar expected_now: expected median TRE over the targets with the current fiducials.
     :ivar expected_after: expected median TRE after measuring ``sequence[:i + 1]``, per i.
-    :ivar gains: (C,) per candidate, in input order: expected reduction of the median TRE if
-        that candidate alone were measured next.
-    :ivar ranking: (C,) all candidate indices by ``gains``, best first (``ranking[0] ==
-        sequence[0]`` unless :func:`plan` was given ``first``; ties go to the lower index).
-    :ivar enough: the best candidate is expected to gain less than the threshold.
-    :ivar reason: the stopping rule's verdict in words.
-    :ivar enough_after: how many of ``sequence`` to measure before the next one is expected to gain
-        less than the threshold (0 when ``enough``); None if not within ``sequence``, or while
-        the stopping rule is held back (:func:`plan`'s ``held_back``, :func:`unresolved_bias`;
-        then ``enough`` is False).
+    :ivar gains: (U,) per unit, in input order: expected reduction of the median TRE if that unit
+        alone (all its candidates) were measured next.
+    :ivar ranking: (U,) all units by ``gains``, best first (``ranking[0] == sequence[0]`` unless
+        :func:`plan` was given ``first``; ties go to the lower index).
+    :ivar enough: a stopping rule holds (:mod:`.stopping`) and nothing holds the plan back.
+    :ivar reason: the verdict and its reason in one sentence.
+    :ivar enough_after: how many of ``sequence`` to measure before a stopping rule is expected
+        to hold (0 when ``enough``); None if not within ``sequence``, or while the rules are held
+        back (:func:`plan`'s ``held_back``, :func:`unresolved_bias`; then ``enough`` is False).
     :ivar fiducial_count: J, the fiducials the plan starts from.
     :ivar points: (K, d) where the error was taken: the targets, or the work-volume sample.
     :ivar on_targets: True when ``points`` are the given targets.
@@ -210,6 +227,12 @@ class MeasurementPlan(NamedTuple):
         measuring can still buy); None when J + C > :data:`ALL_CANDIDATES_MAX`.
     :ivar candidate_repeats: measurements the plan assumed averaged into each new fiducial.
     :ivar target_repeats: ... and into each target (:func:`measurement_repeats`).
+    :ivar enough_rule: which rule says enough: ``within``, ``gain``, ``within+gain``; None
+        when not enough.
+    :ivar members: per unit, its candidate indices (one each without groups).
+    :ivar unit_labels: the group label of each unit; () without groups.
+    :ivar model_check: how the error model compares with the cross-validated errors
+        (:class:`.model_check.ModelCheck`), when the plan was made from a model.
     """
 
     sequence: tuple[int, ...]
@@ -227,12 +250,25 @@ class MeasurementPlan(NamedTuple):
     expected_with_all: Optional[float]
     candidate_repeats: int = 1
     target_repeats: int = 1
+    enough_rule: Optional[str] = None
+    members: tuple[tuple[int, ...], ...] = ()
+    unit_labels: tuple[str, ...] = ()
+    model_check: Any = None
 
     @property
     def error_curve(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        """Fiducial counts J, J + 1, ... and the expected median TRE at each (the sequence)."""
-        n = np.arange(len(self.expected_after) + 1, dtype=np.int64) + self.fiducial_count
+        """Fiducial counts J, J + (the first unit's candidates), ... and the expected median TRE
+        at each (the sequence)."""
+        sizes = [len(self.members[u]) if self.members else 1 for u in self.sequence]
+        n = self.fiducial_count + np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         return n, np.array((self.expected_now,) + self.expected_after)
+
+    @property
+    def ranked_candidates(self) -> tuple[int, ...]:
+        """The candidate indices of ``sequence``, unit after unit."""
+        if not self.members:
+            return tuple(int(u) for u in self.sequence)
+        return tuple(c for u in self.sequence for c in self.members[u])
 
 
 def _check_count(v: object, name: str) -> int:
@@ -315,31 +351,39 @@ def unresolved_bias(fiducials: ArrayLike, error_model: ExpectedErrorModel) -> Op
             f"({noise:.4g}): too few fiducials to tell how the bias varies")
 
 
-def _verdict(gain: float, before: float, best: int, config: PlanConfig) -> tuple[bool, str]:
-    frac = gain / before if before > 0 else 0.0
-    parts = [f"{100 * config.min_gain_fraction:g} %"]
-    if config.min_gain_length > 0:
-        parts.append(f"{config.min_gain_length:g}")
-    said = (f"the best candidate (#{best}) is expected to reduce the median target error by "
-            f"{100 * frac:.2f} % ({gain:.4g}, from {before:.4g})")
-    if gain < max(config.min_gain_fraction * before, config.min_gain_length):
-        which = [p for p, low in zip(parts, (frac < config.min_gain_fraction,
-                                             gain < config.min_gain_length)) if low]
-        return True, f"enough: {said}, less than {' and '.join(which)}"
-    return False, f"measure more: {said}, at least {' and '.join(parts)}"
+def candidate_units(groups: Optional[Sequence[str]], count: int
+                    ) -> tuple[tuple[tuple[int, ...], ...], tuple[str, ...]]:
+    """The units of ``count`` candidates: with ``groups`` (a label per candidate; '' its own
+    unit) one unit per label in order of first appearance, else one per candidate.
+
+    :return: (members per unit, the label of each unit; () without groups).
+    :raises ValueError: when ``groups`` is not ``count`` strings.
+    """
+    if groups is None:
+        return tuple((k,) for k in range(count)), ()
+    labels = [str(g) for g in groups]
+    if len(labels) != count:
+        raise ValueError(f"got {len(labels)} candidate group labels for {count} candidates")
+    members: dict[str, list[int]] = {}
+    for k, g in enumerate(labels):
+        members.setdefault(g if g else f"\0{k}", []).append(k)
+    names = tuple(g if not g.startswith("\0") else "" for g in members)
+    return tuple(tuple(m) for m in members.values()), names
 
 
-def _remaining(with_all: Optional[float], now: float, count: int) -> str:
-    if with_all is None:
-        return ""
-    return (f"; measuring all {count} candidates is expected to bring it to {with_all:.4g} "
-            f"({100 * (with_all / now - 1):+.1f} %)")
+def _padded(members: Sequence[Sequence[int]]) -> NDArray[np.intp]:
+    width = max(len(m) for m in members)
+    out = np.full((len(members), width), -1, dtype=np.intp)
+    for u, m in enumerate(members):
+        out[u, :len(m)] = m
+    return out
 
 
 def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedErrorModel,
          targets: Optional[ArrayLike] = None, *, count: int = 1,
          repeats: Optional[ArrayLike] = None, config: PlanConfig = DEFAULT_PLAN_CONFIG,
-         first: Optional[int] = None, held_back: Optional[str] = None) -> MeasurementPlan:
+         first: Optional[int] = None, held_back: Optional[str] = None,
+         groups: Optional[Sequence[str]] = None, to_measure: str = "") -> MeasurementPlan:
     """Rank candidate fiducials by the expected reduction of the median TRE (module docstring).
 
     :param fiducials: (J, d) current fiducials, working frame (J >= d + 1, not degenerate).
@@ -347,27 +391,32 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     :param error_model: :class:`.expected_error.ExpectedErrorModel` (e.g.
         :func:`error_model_from`).
     :param targets: (K, d) working-frame targets that matter; None: the work volume.
-    :param count: length of the greedy sequence (1 <= count <= C).
+    :param count: length of the greedy sequence, in units (1 <= count <= U).
     :param repeats: measurements averaged into each current fiducial, n_j (default 1 each).
-    :param first: index of a candidate to suggest first whatever its gain (e.g.
+    :param first: index of a candidate whose unit is suggested first whatever its gain (e.g.
         :func:`.model_planner.decisive_candidate`); the rest of the sequence is greedy after it.
-        ``gains``, ``ranking`` and the stopping rule's verdict stay those of the gains.
+        ``gains``, ``ranking`` and the verdict stay those of the gains.
     :param held_back: why the caller's state does not allow "enough" yet (e.g.
         :func:`.model_planner.held_back_by_decision`); with it, or with a reason from
-        :func:`unresolved_bias`, ``enough`` is False, ``enough_after`` None, and ``reason``
-        starts "measure more:" with the reasons, the gains' verdict in brackets.
+        :func:`unresolved_bias`, ``enough`` is False, ``enough_after`` None, and ``reason`` is
+        "measure more:" with the reasons and ``to_measure``.
+    :param groups: a label per candidate ('' its own): candidates measured together (one robot
+        pose); a group is one unit, ranked and measured as a whole.
+    :param to_measure: what to measure to lift ``held_back``, said in the reason.
     :param config: :class:`PlanConfig`.
     :return: :class:`MeasurementPlan`.
     :raises ValueError: on bad shapes, NaN/inf, a dimension mismatch, degenerate fiducials or
-        a count beyond the candidates.
+        a count beyond the units.
     """
     d = error_model.dimension
     x = as_points(fiducials, "fiducials", d, d + 1)
     check_spread(x, "fiducials")
     c = as_points(candidates, "candidates", d, 1)
     count = _check_count(count, "count")
-    if count > len(c):
-        raise ValueError(f"count ({count}) exceeds the number of candidates ({len(c)})")
+    members, labels = candidate_units(groups, len(c))
+    what = "candidate groups" if labels else "candidates"
+    if count > len(members):
+        raise ValueError(f"count ({count}) exceeds the number of {what} ({len(members)})")
     if first is not None and not (isinstance(first, (int, np.integer))
                                   and 0 <= int(first) < len(c)):
         raise ValueError(f"first must be a candidate index in [0, {len(c)}), got {first!r}")
@@ -381,8 +430,8 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     if on_targets:
         check_near(pts, x, "target", c, itself=False)
     if len(c) * len(pts) > MAX_CANDIDATE_POINTS:
-        what = "targets" if on_targets else "work-volume points"
-        raise ValueError(f"{len(c)} candidates x {len(pts)} {what} = {len(c) * len(pts):,} is "
+        kind = "targets" if on_targets else "work-volume points"
+        raise ValueError(f"{len(c)} candidates x {len(pts)} {kind} = {len(c) * len(pts):,} is "
                          f"more than one plan holds ({MAX_CANDIDATE_POINTS:,}): give fewer "
                          f"candidates or targets")
 
@@ -394,10 +443,16 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     const = target_noise(error_model, n_target) + \
         (0.0 if error_model.corrected else d * error_model.signal_std ** 2)
     cal2 = error_model.calibration ** 2
+    singles = all(len(m) == 1 for m in members)
+    padded = _padded(members)
 
     def after(active: NDArray[np.intp]) -> NDArray[np.float64]:
-        e = rigid.after_each(active) + const
-        return cal2 * (e + bias.after_each(active) if bias is not None else e)
+        if singles:
+            idx = padded[active, 0]
+            e = rigid.after_each(idx) + const
+            return cal2 * (e + bias.after_each(idx) if bias is not None else e)
+        e = rigid.after_units(padded[active]) + const
+        return cal2 * (e + bias.after_units(padded[active]) if bias is not None else e)
 
     now_sq = cal2 * (rigid.now() + const + (bias.now() if bias is not None else 0.0))
     now = float(pooled_median(now_sq, d))
@@ -406,40 +461,44 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
         n_all = np.concatenate([1.0 / inv_n, np.full(len(c), float(n_cand))])
         with_all = float(pooled_median(expected_squared_errors(
             np.vstack([x, c]), pts, error_model, n_all, n_target), d))
-    medians = pooled_median(after(np.arange(len(c))), d, np.full(len(c), now))
+    n_units = len(members)
+    medians = pooled_median(after(np.arange(n_units)), d, np.full(n_units, now))
     gains = now - medians
-    chosen = np.zeros(len(c), dtype=bool)
+    chosen = np.zeros(n_units, dtype=bool)
     guess = medians.copy()                       # warm start of the next step's medians
     sequence: list[int] = []
     expected: list[float] = []
-    enough_after: Optional[int] = None
-    before, enough, reason = now, False, ""
+    step_gains: list[float] = []
+    before = now
+    first_unit = None if first is None else next(u for u, m in enumerate(members)
+                                                 if int(first) in m)
     for i in range(count):
         active = np.flatnonzero(~chosen)
         med = medians if i == 0 else pooled_median(after(active), d, guess[active])
         guess[active] = med
         k = int(np.argmin(med))                  # first of equals: the lowest index
         best, value = int(active[k]), float(med[k])
-        low, words = _verdict(before - value, before, best, config)
-        if i == 0:
-            enough, reason = low, words + _remaining(with_all, now, len(c))
-            if first is not None:
-                best, value = int(first), float(med[int(first)])
-        if low and enough_after is None:
-            enough_after = i
+        step_gains.append(before - value)
+        if i == 0 and first_unit is not None:
+            best, value = first_unit, float(med[first_unit])
         sequence.append(best)
         expected.append(value)
         chosen[best] = True
         before = value
         if i + 1 < count:
-            rigid.add(best)
-            if bias is not None:
-                bias.add(best)
+            for m in members[best]:
+                rigid.add(m)
+                if bias is not None:
+                    bias.add(m)
     holds = [r for r in (held_back, unresolved_bias(x, error_model) if error_model.corrected
                          else None) if r]
-    if holds:
-        enough, enough_after, reason = False, None, f"measure more: {'; '.join(holds)} ({reason})"
+    top = int(np.argmin(medians))
+    name = (f"group {labels[top]!r}" if labels and labels[top] else f"candidate #{top}"
+            if not labels else f"candidate #{members[top][0]}")
+    v = verdict(now, with_all, len(c), name, step_gains[0], expected, step_gains, config.within,
+                config.min_gain_fraction, config.min_gain_length, holds, to_measure)
     return MeasurementPlan(tuple(sequence), now, tuple(expected), _frozen(gains),
-                           _frozen(np.argsort(-gains, kind="stable")), enough, reason,
-                           enough_after, len(x), _frozen(pts), on_targets,
-                           _frozen(np.sqrt(now_sq)), with_all, n_cand, n_target)
+                           _frozen(np.argsort(-gains, kind="stable")), v.enough, v.reason,
+                           v.enough_after, len(x), _frozen(pts), on_targets,
+                           _frozen(np.sqrt(now_sq)), with_all, n_cand, n_target, v.rule,
+                           members, labels)

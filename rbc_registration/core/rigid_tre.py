@@ -193,6 +193,15 @@ class RigidFitError:
         theta = g_inv @ (self.s[None] + self.sc[active]) @ g_inv
         return theta.reshape(len(theta), -1) @ self.q.reshape(len(self.q), -1).T
 
+    def after_units(self, members: NDArray[np.intp]) -> NDArray[np.float64]:
+        """(U, K) TRE_rigid^2 after adding each unit's candidates together: ``members`` (U, m)
+        candidate indices per unit, padded with -1 (a robot pose measures several points)."""
+        used = (members >= 0)[:, :, None, None]
+        at = np.maximum(members, 0)
+        g_inv = np.linalg.inv(self.g[None] + np.where(used, self.gc[at], 0.0).sum(axis=1))
+        theta = g_inv @ (self.s[None] + np.where(used, self.sc[at], 0.0).sum(axis=1)) @ g_inv
+        return theta.reshape(len(theta), -1) @ self.q.reshape(len(self.q), -1).T
+
     def add(self, c: int) -> None:
         """Condition on candidate ``c`` having been measured."""
         self.g = self.g + self.gc[c]

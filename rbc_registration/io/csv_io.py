@@ -87,6 +87,9 @@ class TargetTable:
     counts: tuple[int, ...] = ()
     #: The sessions the rows were measured in (those of a ``session`` column), in file order.
     sessions: tuple[str, ...] = ()
+    #: The ``group`` of each id ('' its own; e.g. the robot pose measuring it with others), or
+    #: ``None`` without the column.
+    groups: Optional[tuple[str, ...]] = None
 
 
 def _read_rows(path: PathLike, required: list[str]
@@ -490,7 +493,9 @@ def _central_first(group: list[tuple[int, list[float], list[float]]]) -> list[in
 def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = None,
                  kind: str = "target", fiducials: Optional[ArrayLike] = None,
                  sessions: Optional[SessionPlan] = None) -> TargetTable:
-    """Read TARGETS.csv: ``id,wx,wy[,wz]`` and optionally ``dx,dy[,dz]`` (truth).
+    """Read TARGETS.csv: ``id,wx,wy[,wz]`` and optionally ``dx,dy[,dz]`` (truth) and ``group``
+    (CANDIDATES.csv: the candidates measured together, one robot pose; every row of an id in
+    one group).
 
     Rows sharing an id are repeated measurements of one point and are averaged. A row farther
     than the limit from the mean of the id's earlier rows, in the working frame or in the truth,
@@ -517,11 +522,16 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
         raise CsvError(f"{path}: truth columns incomplete: has {', '.join(partial)}, needs "
                        + ", ".join(f"d{a}" for a in axes))
     tids, work, truth = [], [], []
+    labels: dict[str, str] = {}
     for line, row in rows:
         tid = row.get("id") or ""
         if not tid:
             raise CsvError(f"{path}: row {line}: column id is empty")
         tids.append(tid)
+        group = row.get("group") or ""
+        if labels.setdefault(tid, group) != group:
+            raise CsvError(f"{path}: row {line}: id {tid!r} is in group {group!r} here and in "
+                           f"group {labels[tid]!r} in an earlier row: one {kind}, one group")
         work.append([_number(path, line, f"w{a}", row.get(f"w{a}")) for a in axes])
         if has_truth:
             truth.append(_truth(path, line, row, axes))
@@ -547,14 +557,15 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
     ids, (means,) = mean_by_id(tids, work)
     counts = tuple(len(index) for index in rows_by_id(tids).values())
     seen = tuple(dict.fromkeys(row_sessions))
+    group_column = tuple(labels[t] for t in ids) if "group" in header else None
     if not known:
-        return TargetTable(ids, means, None, counts, seen)
+        return TargetTable(ids, means, None, counts, seen, group_column)
     # an id's truth: the mean of its rows with truth (NaN: none has; a target without truth)
     with_ids, (truth_means,) = mean_by_id([tids[k] for k in known], [truth[k] for k in known])
     destination = np.full_like(means, np.nan)
     position = {t: k for k, t in enumerate(ids)}
     destination[[position[t] for t in with_ids]] = truth_means
-    return TargetTable(ids, means, destination, counts, seen)
+    return TargetTable(ids, means, destination, counts, seen, group_column)
 
 
 def _target_row_sessions(path: PathLike, header: list[str], rows: list,

@@ -11,16 +11,18 @@ ready.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..core.expected_error import ExpectedErrorModel
-from ..core.model_planner import (error_model_from, expected_target_error, plan_from_model,
-                                  served_error_model)
+from ..core.model_check import ModelCheck
+from ..core.model_planner import calibrated, expected_target_error, plan_from_model, \
+    served_error_model
 from ..core.planner import MeasurementPlan, PlanConfig
 from ..core.scale import point_sets_unit_mismatch
 from ..core.validation import as_points
@@ -41,17 +43,23 @@ class PlanningState:
 
     :ivar state: the model state this belongs to (compared by identity with the served one).
     :ivar error_model: the model's planning :class:`~rbc_registration.core.expected_error.
-        ExpectedErrorModel` (the corrected registration, what more fiducials improve); None
-        without a model or when it could not be made.
+        ExpectedErrorModel` (the corrected registration, what more fiducials improve),
+        calibrated against the decision's cross-validated held-out errors
+        (:func:`~rbc_registration.core.model_planner.calibrated`); None without a model or
+        when it could not be made.
     :ivar expected_target_error: expected median TRE over the work volume of the fiducials of
         the registration the model serves (its decision; unit of the model); NaN when unknown.
     :ivar error: why there is no error model ("" when there is).
+    :ivar check: the error model against the cross-validated errors
+        (:class:`~rbc_registration.core.model_check.ModelCheck`; the plans say ``enough`` only
+        while it trusts the error model); None without an error model.
     """
 
     state: ModelState
     error_model: Optional[ExpectedErrorModel]
     expected_target_error: float
     error: str
+    check: Optional[ModelCheck] = None
 
 
 #: Nothing planned yet (belongs to no served state but the empty one).
@@ -72,12 +80,15 @@ def planning_state(state: ModelState, max_fiducials: Optional[int] = None) -> Pl
         return PlanningState(state, None, math.nan, f"the planner is off: {len(model.ids)} "
                              f"fiducials, more than plan_max_fiducials ({max_fiducials})")
     try:
-        em = error_model_from(model)   # planning: the corrected registration
+        em, check = calibrated(model)   # planning: the corrected registration
+        served = served_error_model(model, em)
+        if not served.corrected:        # the calibration is that of the corrected errors
+            served = dataclasses.replace(served, calibration=1.0)
         value = expected_target_error(model, config=PlanConfig(target_repeats=TARGET_REPEATS),
-                                      error_model=served_error_model(model, em))
+                                      error_model=served)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return PlanningState(state, None, math.nan, f"no error model: {exc}")
-    return PlanningState(state, em, value, "")
+    return PlanningState(state, em, value, "", check)
 
 
 def expected_error_now(planning: PlanningState, state: ModelState) -> float:
@@ -113,14 +124,16 @@ def request_error(settings: Settings, n_candidates: int, n_targets: int) -> str:
 
 
 def suggest(planning: PlanningState, state: ModelState, settings: Settings,
-            candidates: ArrayLike, targets: Optional[ArrayLike], count: int
-            ) -> MeasurementPlan:
+            candidates: ArrayLike, targets: Optional[ArrayLike], count: int,
+            groups: Optional[Sequence[str]] = None) -> MeasurementPlan:
     """The plan of a ``~/suggest_next`` request, from the served ``state`` and its ``planning``.
 
     :param candidates: (C, d) working-frame candidates, 1 <= C <= ``max_candidates``.
     :param targets: (K, d) working-frame targets (K <= ``max_candidates``), or None: the work
         volume.
-    :param count: suggestions (0: one).
+    :param count: suggestions (0: one), in units (a group counts once).
+    :param groups: a label per candidate ('' its own; None or all '': no groups): candidates
+        measured together (one robot pose), ranked and suggested as a whole.
     :raises ValueError: naming what is wrong: no model, its error model not ready (yet), too
         many or no candidates or targets, a bad point, a count beyond the candidates or above
         :data:`MAX_SUGGESTIONS`.
@@ -145,9 +158,12 @@ def suggest(planning: PlanningState, state: ModelState, settings: Settings,
                                         (("candidates", candidates), ("targets", targets)))
     if mismatch:
         raise ValueError(f"{mismatch[0]}; the node works in metres")
+    if groups is not None and not any(groups):
+        groups = None
     if count > MAX_SUGGESTIONS:
         raise ValueError(f"count {count}: at most {MAX_SUGGESTIONS} suggestions per request "
                          f"(each is a step of the plan on the executor); measure them, then "
                          f"ask again")
     return plan_from_model(state.model, candidates, targets, count=max(1, count),
-                           config=plan_config(settings), error_model=planning.error_model)
+                           config=plan_config(settings), error_model=planning.error_model,
+                           check=planning.check, groups=groups)

@@ -193,7 +193,7 @@ class ServicesMixin:
             args, error, taken = None, f"rejected ({exc.reason}): {exc.message}", None
         record = None
         if args is not None:
-            record, error = self._ingest.take(args)
+            record, error = self._ingest.take(args._replace(group=request.group))
         if record is None:
             response.success, response.message = False, f"no sample taken: {error}"
             return response

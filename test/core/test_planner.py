@@ -14,7 +14,8 @@ from rbc_registration.core.constants import DecisionMode
 from rbc_registration.core.expected_error import (BiasPosterior, ExpectedErrorModel,
                                                   expected_squared_errors, pooled_median)
 from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpolator
-from rbc_registration.core.model_planner import (check_expected_error, decisive_candidate,
+from rbc_registration.core.model_planner import (calibrated, check_expected_error,
+                                                 decisive_candidate,
                                                  error_model_from, expected_target_error,
                                                  plan_from_model)
 from rbc_registration.core.planner import (PlanConfig, measurement_repeats, overlap_notes, plan,
@@ -135,7 +136,7 @@ def test_greedy_updates_agree_with_planning_again_from_scratch(d, corrected):
     # measuring every candidate, in whatever order, ends where expected_with_all says
     every = plan(x, c, em, t, count=len(c), repeats=reps, config=cfg)
     assert every.expected_after[-1] == pytest.approx(p.expected_with_all, rel=1e-9)
-    assert "measuring all 25 candidates is expected to bring it to" in p.reason
+    assert "expected with all 25 candidates measured" in p.reason
 
 
 def test_points_are_planned_as_often_measured_as_the_fiducials_were():
@@ -347,26 +348,40 @@ def test_pooled_median_is_the_median_of_the_pooled_errors():
 
 
 def test_stopping_rule():
+    """The gain rule (min_gain_fraction 2 %, within off) and the default within rule."""
     rng = np.random.default_rng(8)
     pool = rng.uniform(0, 10, (300, 2))
     t = rng.uniform(0, 10, (10, 2))
     em = ExpectedErrorModel.from_axis_std(1.0, 4.0, [0.05, 0.05])
-    sparse = plan(pool[:6], pool[6:], em, t, count=40)
+    by_gain = PlanConfig(min_gain_fraction=0.02, within=0.0)
+    sparse = plan(pool[:6], pool[6:], em, t, count=40, config=by_gain)
     assert not sparse.enough and sparse.reason.startswith("measure more")
     assert sparse.enough_after is not None and 0 < sparse.enough_after < 40
     k = sparse.enough_after
     # measuring the suggestions up to there makes the plan say enough
     more = np.vstack([pool[:6], pool[6:][list(sparse.sequence[:k])]])
     rest = np.delete(pool[6:], list(sparse.sequence[:k]), axis=0)
-    done = plan(more, rest, em, t)
+    done = plan(more, rest, em, t, config=by_gain)
     assert done.enough and done.reason.startswith("enough") and "2 %" in done.reason
-    assert done.enough_after == 0
+    assert done.enough_after == 0 and done.enough_rule == "gain"
     assert done.gains.max() < 0.02 * done.expected_now
-    # a length threshold stops earlier; no threshold never stops
+    # a length threshold stops earlier; no rule never stops
     by_length = plan(pool[:6], pool[6:], em, t, config=PlanConfig(min_gain_length=1e3))
     assert by_length.enough and "1000" in by_length.reason
-    never = plan(more, rest, em, t, config=PlanConfig(min_gain_fraction=0.0))
+    never = plan(more, rest, em, t, config=PlanConfig(min_gain_fraction=0.0, within=0.0))
     assert not never.enough
+    # the default: within 10 % of the error with every candidate measured
+    default = plan(pool[:6], pool[6:], em, t, count=60)
+    assert not default.enough and default.expected_now > 1.1 * default.expected_with_all
+    k = default.enough_after
+    assert k is not None and default.expected_after[k - 1] <= 1.1 * default.expected_with_all
+    assert k == 1 or default.expected_after[k - 2] > 1.1 * default.expected_with_all
+    more = np.vstack([pool[:6], pool[6:][list(default.sequence[:k])]])
+    rest = np.delete(pool[6:], list(default.sequence[:k]), axis=0)
+    close = plan(more, rest, em, t)
+    assert close.enough and close.enough_rule == "within" and "within 10 %" in close.reason
+    assert close.expected_now <= 1.1 * close.expected_with_all
+    assert close.expected_with_all == pytest.approx(default.expected_with_all, rel=1e-9)
 
 
 @pytest.mark.parametrize("d", [2, 3])
@@ -457,7 +472,13 @@ def test_plan_from_a_model(ra_model):
     p = plan_from_model(m, rest, tw, count=3)
     assert p.on_targets and p.fiducial_count == 40
     assert p.expected_after[-1] < p.expected_now
-    assert expected_target_error(m, tw) == pytest.approx(p.expected_now, rel=1e-12)
+    # the plan's expected error is the model's, calibrated by the held-out errors
+    cal, check = calibrated(m)
+    assert p.model_check == check and cal.calibration == check.ratio
+    assert expected_target_error(m, tw, error_model=cal) == pytest.approx(p.expected_now,
+                                                                          rel=1e-12)
+    assert expected_target_error(m, tw, error_model=em) * check.ratio == pytest.approx(
+        p.expected_now, rel=1e-12)
     assert 0.5 * p.expected_now < expected_target_error(m) < 2 * p.expected_now
     paper = build_model(m.working, m.destination, ModelConfig(dimension=2, sigma=0.11))
     assert error_model_from(paper).length_scale == pytest.approx(hyper.length_scale, rel=1e-6)
@@ -469,7 +490,8 @@ class Decided:
 
     def __init__(self, model, apply, confident=True, mode=DecisionMode.CV):
         self._model = model
-        self.decision = types.SimpleNamespace(apply=apply, confident=confident, mode=mode)
+        self.decision = types.SimpleNamespace(apply=apply, confident=confident, mode=mode,
+                                              cross_validation=model.decision.cross_validation)
 
     def __getattr__(self, name):
         return getattr(self._model, name)
@@ -501,7 +523,7 @@ def test_no_enough_while_the_decision_is_unsure_whether_to_correct(ra_model):
     held = plan_from_model(Decided(m, False, confident=False), rest, count=2, config=easy)
     assert not held.enough and held.enough_after is None
     assert held.reason.startswith("measure more: the decision serves the uncorrected")
-    assert "(enough: the best candidate" in held.reason
+    assert "enough:" not in held.reason and "rules apply once it is" in held.reason
     base = plan_from_model(m, rest, count=2, config=easy)
     assert held.expected_now == base.expected_now
     np.testing.assert_array_equal(held.gains, base.gains)
@@ -513,7 +535,7 @@ def test_no_enough_while_the_decision_is_unsure_whether_to_correct(ra_model):
     assert k == int(np.argmax(score)) and z == pytest.approx(score.max())
     assert held.sequence[0] == k != base.sequence[0] and f"(#{k})" in held.reason
     assert held.expected_after[0] == pytest.approx(base.expected_now - base.gains[k], rel=1e-9)
-    forced = plan(m.working, rest, error_model_from(m), count=2, repeats=m.counts, config=easy,
+    forced = plan(m.working, rest, calibrated(m)[0], count=2, repeats=m.counts, config=easy,
                   first=k)
     assert forced.sequence == held.sequence               # the rest greedy after it
     assert forced.expected_after == pytest.approx(held.expected_after, rel=1e-12)

@@ -1,6 +1,7 @@
 """The node's planner without ROS: the planning state of a model state, the request rules of
 ``~/suggest_next``, the parameters, and the planning thread's coalescing and cancel."""
 
+import dataclasses
 import math
 import re
 import threading
@@ -36,7 +37,10 @@ def test_planning_state_of_a_model_is_the_core_planner():
     state = grid_state(SETTINGS)
     p = planning_state(state)
     assert p.state is state and p.error == "" and p.error_model is not None
-    assert p.expected_target_error == pytest.approx(expected_target_error(state.model), rel=1e-12)
+    # the served error, calibrated by the cross-validated held-out errors
+    assert state.model.decision.apply and p.error_model.calibration == p.check.ratio != 1.0
+    assert p.expected_target_error == pytest.approx(
+        p.check.ratio * expected_target_error(state.model), rel=1e-12)
     em = error_model_from(state.model)
     assert (p.error_model.signal_std, p.error_model.length_scale) == (em.signal_std,
                                                                       em.length_scale)
@@ -78,7 +82,13 @@ def test_suggest_is_the_core_plan_once_the_error_model_is_ready():
     strict = SETTINGS.replace(plan_min_gain_fraction=0.5, plan_min_gain_length=1e-4)
     assert plan_config(strict) == PlanConfig(min_gain_fraction=0.5, min_gain_length=1e-4,
                                              target_repeats=1)   # ~/correct_target: one point
-    assert suggest(p, state, strict, cand, None, 1).enough
+    # 12 fiducials: too few for the error model check, so never enough, and it says what to do
+    held = suggest(p, state, strict, cand, None, 1)
+    assert not held.enough and not p.check.trustworthy and p.check.units == 12
+    assert "measure at least 3 more fiducials" in held.reason
+    assert p.error_model.calibration == p.check.ratio
+    trusted = dataclasses.replace(p, check=p.check._replace(trustworthy=True, note=""))
+    assert suggest(trusted, state, strict, cand, None, 1).enough
 
 
 def test_a_request_in_another_unit_is_refused():
