@@ -26,6 +26,15 @@ every stamp (``duplicate_window=None``): a bag recorded twice is caught whatever
 Unstamped measurements (stamp 0) cannot be told apart and are never duplicates. Journal replay
 (:meth:`FiducialAccumulator.restore`) fills the window too, so a
 copy arriving after a restart is still a duplicate.
+
+**Groups and sessions.** A measurement may name its fiducial's group (fiducials sharing one
+error, :mod:`.groups`): a fiducial keeps the first non-empty group it is given, and a later
+measurement with another non-empty group is rejected as ``conflict``. Its session
+(:mod:`.session_sums`: sums per fiducial and session, the live bump rule) decides which working
+frame it is in; with more than one session :meth:`FiducialAccumulator.fiducial_set` maps the
+sessions into the current one's frame (:func:`~.sessions.estimate_sessions`) and leaves out the
+sessions kept apart. The outlier check of the working point compares with the fiducial's
+repeats in the measurement's own session (a re-stationed tracker moves every working point).
 """
 
 from __future__ import annotations
@@ -37,12 +46,13 @@ from typing import Iterable, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .measurement_checks import (MAX_ID_LENGTH, check_age, check_coords, check_new_id,
-                                 check_record_values, check_stamp)
+from .measurement_checks import (MAX_ID_LENGTH, check_age, check_coords, check_label,
+                                 check_new_id, check_record_values, check_stamp)
 from .noise import RepeatStats
 from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSet, Measurement,
                       Record, RejectedMeasurement, quote)
 from .repeats import repeat_outlier
+from .session_sums import SessionSums
 
 __all__ = ["AUTO_ID_PREFIX", "DUPLICATE_WINDOW", "MAX_ID_LENGTH", "REJECT_REASONS", "EnabledChange",
            "FiducialAccumulator", "FiducialSet", "Measurement", "Record", "RejectedMeasurement"]
@@ -125,6 +135,9 @@ class FiducialAccumulator:
         self._recent: dict[str, dict[float, tuple[tuple[float, ...], ...]]] = {}
         self.n_measurements = 0
         self.rejected = {reason: 0 for reason in REJECT_REASONS}
+        self._groups: dict[str, str] = {}           # fiducial -> its first non-empty group
+        self._first_stamps: dict[str, float] = {}   # fiducial -> stamp of its first measurement
+        self.sessions = SessionSums(self.dimension)
 
     @property
     def n_rejected(self) -> int:
@@ -149,7 +162,8 @@ class FiducialAccumulator:
 
     def prepare(self, fiducial_id: Optional[str], working_xyz: ArrayLike,
                 destination_xyz: ArrayLike, working_frame: str = "", destination_frame: str = "",
-                stamp_s: float = 0.0, now_s: Optional[float] = None) -> Measurement:
+                stamp_s: float = 0.0, now_s: Optional[float] = None, group: str = "",
+                session: str = "") -> Measurement:
         """Validate one measurement and assign its id, without adding it (see :meth:`commit`).
 
         :param fiducial_id: the fiducial's id; ``None`` or ``""``: assigned by proximity.
@@ -159,23 +173,28 @@ class FiducialAccumulator:
         :param destination_frame: frame of ``destination_xyz``; ``""`` means the default.
         :param stamp_s: measurement time [s].
         :param now_s: the clock now [s], for the :attr:`max_stamp_age` check (``None``: no check).
+        :param group: the fiducials sharing its error (``""``: its own group).
+        :param session: its session (``""``: the current one; module docstring).
         :return: the record to :meth:`commit`.
         :raises RejectedMeasurement: with reason frame, nonfinite, outlier, malformed, stale,
-            duplicate or conflict
-            (the rejection is counted in :attr:`rejected`).
+            duplicate or conflict (a stamp measured twice, or another group than the
+            fiducial's) (the rejection is counted in :attr:`rejected`).
         """
         try:
             return self._prepare(fiducial_id, working_xyz, destination_xyz, working_frame,
-                                 destination_frame, stamp_s, now_s)
+                                 destination_frame, stamp_s, now_s, group, session)
         except RejectedMeasurement as exc:
             self.rejected[exc.reason] += 1
             raise
 
     def _prepare(self, fiducial_id: Optional[str], working_xyz: ArrayLike,
                  destination_xyz: ArrayLike, working_frame: str, destination_frame: str,
-                 stamp_s: float, now_s: Optional[float]) -> Measurement:
+                 stamp_s: float, now_s: Optional[float], group: str = "",
+                 session: str = "") -> Measurement:
         if fiducial_id is not None:
             check_new_id(fiducial_id)
+        check_label("group", group)
+        check_label("session", session)
         for name, got, want in (("working frame", working_frame, self.working_frame),
                                 ("destination frame", destination_frame,
                                  self.destination_frame)):
@@ -195,13 +214,23 @@ class FiducialAccumulator:
         fiducial = self._fiducials.get(fid)
         if fiducial is not None and stamp != 0:
             self._check_duplicate(fid, stamp, w, d, auto)
+        known = self._groups.get(fid, "")
+        if group and known and group != known:
+            raise RejectedMeasurement(
+                "conflict", f"fiducial {quote(fid)} is in group {quote(known)}, this measurement "
+                            f"says group {quote(group)}: a fiducial is in one group (send its "
+                            "group unchanged, or give the other point its own id)")
         if fiducial is not None and self.outlier_distance > 0:
-            for name, point, mean in (("working", w, fiducial.mean_w()),
-                                      ("destination", d, fiducial.mean_d())):
-                far = repeat_outlier(fid, name, point, mean, fiducial.n, self.outlier_distance)
+            own = self.sessions.cell(self.sessions.resolve(session), fid)
+            for name, repeats, point, mean in (
+                    ("working", own, w, own.mean_w() if own is not None else None),
+                    ("destination", fiducial, d, fiducial.mean_d())):
+                if repeats is None:
+                    continue
+                far = repeat_outlier(fid, name, point, mean, repeats.n, self.outlier_distance)
                 if far:
                     raise RejectedMeasurement("outlier", far)
-        return Measurement(fid, w, d, stamp, auto)
+        return Measurement(fid, w, d, stamp, auto, group, session)
 
     def _check_duplicate(self, fid: str, stamp: float, working: tuple[float, ...],
                          destination: tuple[float, ...], auto: bool) -> None:
@@ -274,6 +303,10 @@ class FiducialAccumulator:
         fiducial.add(tuple(record.working), tuple(record.destination))
         self._dest_means[self._index[fid]] = fiducial.mean_d()
         self.n_measurements += 1
+        self._first_stamps.setdefault(fid, record.stamp_s)
+        if record.group:
+            self._groups.setdefault(fid, record.group)
+        self.sessions.add(record)
         if record.stamp_s != 0:
             recent = self._recent.setdefault(fid, {})
             points = tuple(record.working) + tuple(record.destination)
@@ -283,14 +316,15 @@ class FiducialAccumulator:
 
     def add(self, fiducial_id: Optional[str], working_xyz: ArrayLike, destination_xyz: ArrayLike,
             working_frame: str = "", destination_frame: str = "",
-            stamp_s: float = 0.0, now_s: Optional[float] = None) -> str:
+            stamp_s: float = 0.0, now_s: Optional[float] = None, group: str = "",
+            session: str = "") -> str:
         """:meth:`prepare` then :meth:`commit` one measurement.
 
         :return: the id of the fiducial it was added to.
         :raises RejectedMeasurement: see :meth:`prepare`.
         """
         record = self.prepare(fiducial_id, working_xyz, destination_xyz, working_frame,
-                              destination_frame, stamp_s, now_s)
+                              destination_frame, stamp_s, now_s, group, session)
         self.commit(record)
         return record.fiducial_id
 
@@ -317,18 +351,36 @@ class FiducialAccumulator:
 
     # -- output -------------------------------------------------------------------------------
     def fiducial_set(self) -> FiducialSet:
-        """The enabled fiducials' means and repeats (see :class:`FiducialSet`)."""
+        """The enabled fiducials' means and repeats (see :class:`FiducialSet`); with more than
+        one session in the current session's frame, kept-apart sessions left out (module
+        docstring)."""
         ids = [f for f in self._order if self._fiducials[f].enabled]
         d = self.dimension
-        fids = [self._fiducials[f] for f in ids]
+        plan = self.sessions.plan(set(ids))
+        if plan is None:
+            fids: list = [self._fiducials[f] for f in ids]
+            working = [f.mean_w() for f in fids]
+            destination = [f.mean_d() for f in fids]
+            variances = [f.variance_w() for f in fids]
+        else:
+            joined = self.sessions.combined(plan, ids)
+            ids = list(joined)
+            fids = list(joined.values())
+            working = [f.mean_w for f in fids]
+            destination = [f.mean_d for f in fids]
+            variances = [f.variance_w() for f in fids]
+        groups = tuple(self._groups.get(f, "") for f in ids)
         return FiducialSet(
             ids=tuple(ids),
-            working=np.array([f.mean_w() for f in fids]).reshape(-1, d),
-            destination=np.array([f.mean_d() for f in fids]).reshape(-1, d),
+            working=np.array(working, dtype=np.float64).reshape(-1, d),
+            destination=np.array(destination, dtype=np.float64).reshape(-1, d),
             repeat_stats=RepeatStats(np.array([f.n for f in fids], dtype=np.int64),
-                                     np.array([f.variance_w() for f in fids], dtype=np.float64)),
+                                     np.array(variances, dtype=np.float64)),
             disabled_ids=tuple(f for f in self._order if not self._fiducials[f].enabled),
-            n_measurements=self.n_measurements)
+            n_measurements=self.n_measurements,
+            groups=groups if any(groups) else None, sessions=plan,
+            first_stamps=tuple(self._first_stamps[f] for f in ids),
+            session_starts=self.sessions.starts() if plan is not None else ())
 
     def restore(self, records: Iterable[Record]) -> list[str]:
         """Clear, then commit ``records`` in order: the state after the same accepted
@@ -358,4 +410,8 @@ class FiducialAccumulator:
         """A hashable summary of the state (ids, enabled flags, every running statistic): equal
         digests mean equal accumulators. For tests and restart checks."""
         return tuple((f, self._fiducials[f].digest()) for f in self._order)
+
+    def session_digest(self) -> tuple:
+        """Groups and every per-session statistic (:meth:`.session_sums.SessionSums.digest`)."""
+        return tuple(self._groups.items()), self.sessions.digest()
 

@@ -32,6 +32,18 @@ def check_id(fiducial_id: object) -> None:
                                                f"got {quote(fiducial_id)}")
 
 
+def check_label(name: str, label: object) -> None:
+    """The rule for a measurement's ``group`` or ``session`` label (live and on replay): a
+    string of at most :data:`MAX_ID_LENGTH` characters without line breaks or U+FFFD."""
+    if not isinstance(label, str):
+        raise RejectedMeasurement("malformed", f"{name} must be a string, got {quote(label)}")
+    if (len(label) > MAX_ID_LENGTH or any(c in label for c in "\n\r\0")
+            or REPLACEMENT_CHARACTER in label):
+        raise RejectedMeasurement("malformed", f"{name} must be at most {MAX_ID_LENGTH} "
+                                               f"characters of valid UTF-8 without line "
+                                               f"breaks, got {quote(label)}")
+
+
 def check_new_id(fiducial_id: object) -> None:
     """The rule for the given id of a new measurement: :func:`check_id`, and no U+FFFD.
 
@@ -123,6 +135,8 @@ def check_record_values(record: Record, dimension: int) -> None:
     if not record.fiducial_id:
         raise RejectedMeasurement("malformed", "fiducial_id is empty")
     check_id(record.fiducial_id)
+    check_label("group", record.group)
+    check_label("session", record.session)
     check_stamp(record.stamp_s)
     for name, xyz in (("working point", record.working),
                       ("destination point", record.destination)):

@@ -6,13 +6,17 @@ measurement with its reason, and the per-fiducial store of repeats. Pure Python 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Union
+from typing import TYPE_CHECKING, Any, Optional, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .errors import InputError
 from .constants import REJECT_REASONS
 from .noise import RepeatStats
+
+if TYPE_CHECKING:   # scipy.stats is loaded where sessions are estimated, not with the records
+    from .sessions import SessionPlan
 
 
 #: Longest text of a rejected value quoted in an error message (a 1 MB id is not logged whole).
@@ -28,7 +32,7 @@ def quote(value: Any, limit: int = QUOTE_LIMIT) -> str:
     return f"{text[:limit]}...{length}"
 
 
-class RejectedMeasurement(ValueError):
+class RejectedMeasurement(InputError):
     """A measurement that must not reach the model.
 
     :ivar reason: one of :data:`REJECT_REASONS`.
@@ -48,7 +52,9 @@ class Measurement:
     """One accepted measurement of fiducial ``fiducial_id`` (coordinates in the caller's unit).
 
     ``working`` and ``destination`` hold the first ``dimension`` coordinates (x, y[, z]);
-    ``auto_id`` is true when the id was assigned by proximity (``merge_radius``).
+    ``auto_id`` is true when the id was assigned by proximity (``merge_radius``). ``group``:
+    the fiducials that share its error (``""``: its own group); ``session``: as given, ``""``
+    meaning the accumulator's current session (:mod:`.session_sums`).
     """
 
     fiducial_id: str
@@ -56,6 +62,8 @@ class Measurement:
     destination: tuple[float, ...]
     stamp_s: float
     auto_id: bool = False
+    group: str = ""
+    session: str = ""
 
 
 @dataclass(frozen=True)
@@ -86,16 +94,31 @@ class FiducialSet:
     #: Enabled fiducials a build left out (:func:`~rbc_registration.pipeline.state.build_state`:
     #: the model could not be built with them), not in ``ids``; () from the accumulator.
     left_out_ids: tuple[str, ...] = ()
+    #: Per fiducial its group label (``""``: its own group); ``None`` when no group was given.
+    groups: Optional[tuple[str, ...]] = None
+    #: The sessions' motions (:class:`~.sessions.SessionPlan`) when more than one session
+    #: exists, else ``None``; ``working`` is then in the reference session's frame.
+    sessions: Optional["SessionPlan"] = None
+    #: Per fiducial the stamp of its first measurement [s] (0: unstamped); () when not known.
+    first_stamps: tuple[float, ...] = ()
+    #: Per session (``sessions``' names) the stamp of its first measurement [s].
+    session_starts: tuple[tuple[str, float], ...] = ()
 
     def without(self, index: ArrayLike) -> "FiducialSet":
         """This set without the fiducials at positions ``index`` (they move to
         ``left_out_ids``; ``n_measurements`` still counts their measurements)."""
         keep = np.ones(len(self.ids), dtype=bool)
         keep[np.asarray(index, dtype=np.intp)] = False
+
+        def kept(values: Optional[tuple]) -> Optional[tuple]:
+            return None if values is None else tuple(v for v, k in zip(values, keep) if k)
+
         return FiducialSet(tuple(f for f, k in zip(self.ids, keep) if k), self.working[keep],
                            self.destination[keep], self.repeat_stats.subset(keep),
                            self.disabled_ids, self.n_measurements,
-                           self.left_out_ids + tuple(f for f, k in zip(self.ids, keep) if not k))
+                           self.left_out_ids + tuple(f for f, k in zip(self.ids, keep) if not k),
+                           kept(self.groups), self.sessions, kept(self.first_stamps) or (),
+                           self.session_starts)
 
 
 class FiducialRepeats:
@@ -122,6 +145,26 @@ class FiducialRepeats:
                 delta = value - mean[k]
                 mean[k] += delta / self.n
                 m2[k] += delta * (value - mean[k])
+
+    def remove(self, working: tuple[float, ...], destination: tuple[float, ...]) -> None:
+        """Take back one measurement added earlier (Welford in reverse); at n = 0 every sum is
+        0 again."""
+        if self.n <= 1:
+            self.n = 0
+            for values in (self._mean_w, self._m2_w, self._mean_d, self._m2_d):
+                values[:] = [0.0] * len(values)
+            return
+        self.n -= 1
+        for mean, m2, point in ((self._mean_w, self._m2_w, working),
+                                (self._mean_d, self._m2_d, destination)):
+            for k, value in enumerate(point):
+                before = mean[k]
+                mean[k] = before + (before - value) / self.n
+                m2[k] = max(0.0, m2[k] - (value - mean[k]) * (value - before))
+
+    def m2_w(self) -> float:
+        """The working-frame sum of squared deviations, summed over axes (rotation-invariant)."""
+        return sum(self._m2_w)
 
     def mean_w(self) -> tuple[float, ...]:
         """Mean working-frame point."""

@@ -22,7 +22,9 @@ adding its fiducials to those the next ones are compared with.
 
 The live node finds a move nobody declared with :class:`BumpDetector`: re-measured fiducials whose
 new points are explained by one rigid motion of their earlier means, by the same F test at
-:data:`LIVE_SIGNIFICANCE`, open a new session at the first of them.
+:data:`LIVE_SIGNIFICANCE`, open a new session at the first of them. Every size k of the newest
+re-measurements is tested at once, from running sums (:func:`newest_motion_tests`): one batched
+d x d SVD per re-measurement, not a rigid fit per k.
 """
 
 from __future__ import annotations
@@ -192,6 +194,39 @@ def motion_test(before: NDArray[np.float64], after: NDArray[np.float64],
     return reg, float(scipy.stats.f.sf(max(f, 0.0), q, dof))
 
 
+def newest_motion_tests(before: NDArray[np.float64], after: NDArray[np.float64]
+                        ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """:func:`motion_test`'s F statistic (unweighted) for each k = d + 1 .. n newest rows of
+    ``before`` -> ``after`` (n, d), and whether those k fix a motion (:func:`spread_enough`),
+    from running sums and one batched d x d SVD. With centred sums H = sum b' a'^T = U S V^T,
+    the least-squares rotation leaves SS1 = |b'|^2 + |a'|^2 - 2 (s_1 + .. + sign(det U V) s_d).
+
+    :return: (F, spread), each (n - d,), entry i for the newest d + 1 + i rows.
+    """
+    n, d = before.shape
+    origin = before[-1]
+    b, a = (before - origin)[::-1], (after - origin)[::-1]       # newest first
+    k = np.arange(1, n + 1, dtype=np.float64)
+    sb, sa = np.cumsum(b, axis=0), np.cumsum(a, axis=0)
+    bb = (np.cumsum(np.einsum("ni,nj->nij", b, b), axis=0)
+          - np.einsum("ni,nj->nij", sb, sb) / k[:, None, None])
+    h = (np.cumsum(np.einsum("ni,nj->nij", b, a), axis=0)
+         - np.einsum("ni,nj->nij", sb, sa) / k[:, None, None])
+    aa = np.cumsum(np.sum(a * a, axis=1)) - np.sum(sa * sa, axis=1) / k
+    ss0 = np.cumsum(np.sum((a - b) ** 2, axis=1))[d:]
+    u, sv, vt = np.linalg.svd(h[d:])
+    sign = np.sign(np.linalg.det(u) * np.linalg.det(vt))
+    sv[:, -1] *= np.where(sign == 0, 1.0, sign)
+    ss1 = np.maximum(np.trace(bb[d:], axis1=1, axis2=2) + aa[d:] - 2 * sv.sum(axis=1), 0.0)
+    q = d * (d + 1) // 2
+    dof = d * k[d:] - q
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(ss1 > 0, ((ss0 - ss1) / q) / (ss1 / dof), np.where(ss0 > 0, np.inf, 0.0))
+    spread_sv = np.sqrt(np.maximum(np.linalg.eigvalsh(bb[d:])[:, ::-1], 0.0))
+    spread = (spread_sv[:, 0] > 0) & (spread_sv[:, 1] > COLLINEAR_FRACTION * spread_sv[:, 0])
+    return f, spread
+
+
 def session_cells(ids: Sequence[str], sessions: Sequence[str], points: ArrayLike
                   ) -> dict[str, dict[str, tuple[NDArray[np.float64], int]]]:
     """Per session (in order of first appearance), per fiducial id: (mean point, count)."""
@@ -304,8 +339,9 @@ class BumpDetector:
     first). It keeps the latest re-measurement of each fiducial, at most ``window`` of them
     (memory bounded). When the newest k of them (k from d + 1 up) are explained by one rigid
     motion of their earlier means at :data:`LIVE_SIGNIFICANCE` (divided by the number of k
-    tried), a :class:`Bump` is returned; the new session starts at the earliest of those k
-    re-measurements that the motion fits better than no motion. Then the detector starts over:
+    tried), a :class:`Bump` is returned; the new session starts at the change point among the
+    kept re-measurements (at the latest the first of those k): the one before which no motion
+    and from which on the motion leave the least squared misfit. Then the detector starts over:
     call :meth:`reset` when a session opens for any other reason.
 
     :param dimension: 2 or 3.
@@ -320,10 +356,21 @@ class BumpDetector:
         self.window = window or 4 * (dimension + 1)
         self.significance = significance
         self._recent: list[tuple[int, str, NDArray[np.float64], NDArray[np.float64]]] = []
+        self._critical: dict[int, NDArray[np.float64]] = {}
 
     def reset(self) -> None:
         """Forget the re-measurements (a new session opened)."""
         self._recent.clear()
+
+    def _critical_f(self, n: int) -> NDArray[np.float64]:
+        """The F test's critical values for k = d + 1 .. n newest, at the level per k."""
+        if n not in self._critical:
+            d = self.dimension
+            q = d * (d + 1) // 2
+            k = np.arange(d + 1, n + 1)
+            level = self.significance / len(k)
+            self._critical[n] = np.asarray(scipy.stats.f.isf(level, q, d * k - q), dtype=float)
+        return self._critical[n]
 
     def observe(self, sequence: int, fiducial_id: str, point: ArrayLike,
                 earlier_mean: Optional[ArrayLike]) -> Optional[Bump]:
@@ -336,24 +383,23 @@ class BumpDetector:
         self._recent.append((sequence, fiducial_id, m, p))
         del self._recent[: max(0, len(self._recent) - self.window)]
         d = self.dimension
-        sizes = range(d + 1, len(self._recent) + 1)
-        for k in sizes:
-            newest = self._recent[-k:]
-            before = np.array([r[2] for r in newest])
-            after = np.array([r[3] for r in newest])
-            if not spread_enough(before):
-                continue
-            try:
-                reg, p_value = motion_test(before, after)
-            except ValueError:
-                continue
-            if p_value < self.significance / len(sizes):
-                fits = (np.linalg.norm(after - reg.apply(before), axis=1)
-                        < np.linalg.norm(after - before, axis=1))
-                first = len(newest) - 1
-                while first > 0 and fits[first - 1]:
-                    first -= 1
-                bump = Bump(newest[first][0], reg, p_value, k - first)
-                self.reset()
-                return bump
+        if len(self._recent) < d + 1:
+            return None
+        before = np.array([r[2] for r in self._recent])
+        after = np.array([r[3] for r in self._recent])
+        f, spread = newest_motion_tests(before, after)
+        hits = np.flatnonzero(spread & (f > self._critical_f(len(self._recent))))
+        if len(hits):
+            k = int(hits[0]) + d + 1
+            reg, p_value = motion_test(before[-k:], after[-k:])
+            # the change point among all kept re-measurements (at the latest the first of the
+            # newest k): no motion before it, the motion from it on, least squares
+            still = np.sum((after - before) ** 2, axis=1)
+            moved = np.sum((after - reg.apply(before)) ** 2, axis=1)
+            cost = (np.concatenate([[0.0], np.cumsum(still)])
+                    + np.concatenate([np.cumsum(moved[::-1])[::-1], [0.0]]))
+            first = min(int(np.argmin(cost[:-1])), len(self._recent) - k)
+            bump = Bump(self._recent[first][0], reg, p_value, len(self._recent) - first)
+            self.reset()
+            return bump
         return None

@@ -26,7 +26,8 @@ LOG_EVERY_UP_TO = 20
 
 class PairArgs(NamedTuple):
     """A fiducial pair as the arguments of ``FiducialAccumulator.prepare`` (points (3,)):
-    ``fiducial_id`` ``None`` means "assign by proximity"; stamp in seconds."""
+    ``fiducial_id`` ``None`` means "assign by proximity"; stamp in seconds; ``group`` and
+    ``session`` as in ``FiducialPair`` (empty: its own group, the current session)."""
 
     fiducial_id: Optional[str]
     working_xyz: Sequence[float]
@@ -34,6 +35,8 @@ class PairArgs(NamedTuple):
     working_frame: str
     destination_frame: str
     stamp_s: float
+    group: str = ""
+    session: str = ""
 
 
 def repeated_stamps(stream: str, stamp_s: float) -> str:
@@ -180,7 +183,9 @@ class Ingest:
         """Validate, journal and count one measurement."""
         now = self._clock() if self._clock is not None and self._acc.max_stamp_age > 0 else None
         try:
-            record = self._acc.prepare(*args, now_s=now)
+            record = self._acc.prepare(*args[:6], now_s=now,
+                                       group=args[6] if len(args) > 6 else "",
+                                       session=args[7] if len(args) > 7 else "")
         except RejectedMeasurement as exc:
             self._rejected(exc)
             return _Outcome(None, exc.reason, f"rejected ({exc.reason}): {exc.message}")

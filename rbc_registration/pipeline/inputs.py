@@ -11,7 +11,8 @@ from typing import NamedTuple, Optional
 class PairMessage(NamedTuple):
     """A ``FiducialPair`` (``fiducial_id`` may be empty: id assigned by proximity);
     ``stamp_ns``: the header stamp in whole nanoseconds when known (a bag's), else ``None``;
-    ``stamp_error``: why the header stamp is not a time (then ``stamp_s`` is NaN), else empty."""
+    ``stamp_error``: why the header stamp is not a time (then ``stamp_s`` is NaN), else empty;
+    ``group`` and ``session`` as in the message (empty: its own group, the current session)."""
 
     log_ns: int
     stamp_s: float
@@ -22,6 +23,8 @@ class PairMessage(NamedTuple):
     destination_frame: str
     stamp_ns: Optional[int] = None
     stamp_error: str = ""
+    group: str = ""
+    session: str = ""
 
 
 class PointMessage(NamedTuple):

@@ -12,13 +12,15 @@ import re
 import zlib
 from typing import Any, Optional
 
+from ..core.errors import InputError
 from ..core.accumulator import EnabledChange, Measurement, Record
 
 JOURNAL_NAME = "journal.jsonl"
 JOURNAL_VERSION = 2
 #: Versions this module reads (1: without record checksums, rewritten as 2 on load).
 READABLE_VERSIONS = (1, 2)
-#: Bounds on the journal's content (a record is < 1 kB: ids are at most 256 characters).
+#: Bounds on the journal's content (a record is < 5 kB: ids, groups and sessions are at most 256
+#: characters each, 6 bytes per character escaped).
 MAX_LINE_BYTES = 8192
 MAX_INT_DIGITS = 20
 MAX_BRACKETS = 4
@@ -27,7 +29,7 @@ _SEAL = re.compile(rb',"c":"([0-9a-f]{8})"\}$')
 _STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"')
 
 
-class JournalMismatch(ValueError):
+class JournalMismatch(InputError):
     """The journal in ``state_dir`` was written with other frames or another dimension."""
 
 
@@ -39,10 +41,11 @@ def _measurement_line(m: Measurement) -> Optional[str]:
     """The journal line of ``m`` written directly: the same characters ``json.dumps`` gives
     (keys in order, ``(",", ":")`` separators, ASCII, floats by ``float.__repr__``), at about
     half the cost per ingested message. ``None`` (then :func:`record_to_json` takes the
-    ``json`` path, which refuses NaN and inf) unless the id is a str and every coordinate and
-    the stamp a float (``float.__repr__`` raises ``TypeError`` otherwise) and finite (the
-    ``repr`` of a finite float has no "n", that of ``nan`` / ``inf`` has)."""
-    if type(m.fiducial_id) is not str:
+    ``json`` path, which refuses NaN and inf) unless the id, group and session are str and every
+    coordinate and the stamp a float (``float.__repr__`` raises ``TypeError`` otherwise) and
+    finite (the ``repr`` of a finite float has no "n", that of ``nan`` / ``inf`` has)."""
+    if type(m.fiducial_id) is not str or type(m.group) is not str \
+            or type(m.session) is not str:
         return None
     try:
         w = ",".join(map(_float_repr, m.working))
@@ -53,6 +56,10 @@ def _measurement_line(m: Measurement) -> Optional[str]:
     if "n" in w or "n" in d or "n" in s:
         return None
     auto = ',"auto":true' if m.auto_id else ""
+    if m.group:
+        auto += f',"g":{_json_string(m.group)}'
+    if m.session:
+        auto += f',"se":{_json_string(m.session)}'
     return f'{{"t":"m","id":{_json_string(m.fiducial_id)},"w":[{w}],"d":[{d}],"s":{s}{auto}}}'
 
 
@@ -67,6 +74,10 @@ def record_to_json(record: Record) -> str:
                                "d": list(record.destination), "s": record.stamp_s}
         if record.auto_id:
             obj["auto"] = True
+        if record.group:
+            obj["g"] = record.group
+        if record.session:
+            obj["se"] = record.session
     elif isinstance(record, EnabledChange):
         obj = {"t": "e", "id": record.fiducial_id, "on": record.enabled}
     else:
@@ -144,8 +155,9 @@ def record_from_object(obj: Any, line: str = "") -> Record:
     kind = obj.get("t")
     keys = set(obj) - {"c"}
     if kind == "m":
-        if not {"t", "id", "w", "d", "s"} <= keys <= {"t", "id", "w", "d", "s", "auto"}:
-            raise ValueError(f"measurement fields must be t, id, w, d, s[, auto]: {line[:80]!r}")
+        if not {"t", "id", "w", "d", "s"} <= keys <= {"t", "id", "w", "d", "s", "auto", "g", "se"}:
+            raise ValueError(f"measurement fields must be t, id, w, d, s[, auto, g, se]: "
+                             f"{line[:80]!r}")
         w, d, fid, stamp = obj["w"], obj["d"], obj["id"], obj["s"]
         if not (isinstance(w, list) and isinstance(d, list) and 2 <= len(w) == len(d) <= 3
                 and all(_number(v) for v in [*w, *d])):
@@ -155,8 +167,12 @@ def record_from_object(obj: Any, line: str = "") -> Record:
                              f"{line[:80]!r}")
         if not isinstance(obj.get("auto", False), bool):
             raise ValueError(f"measurement auto must be a boolean: {line[:80]!r}")
+        group, session = obj.get("g", ""), obj.get("se", "")
+        if not isinstance(group, str) or not isinstance(session, str):
+            raise ValueError(f"measurement g (group) and se (session) must be strings: "
+                             f"{line[:80]!r}")
         return Measurement(fid, tuple(float(v) for v in w), tuple(float(v) for v in d),
-                           float(stamp), obj.get("auto", False))
+                           float(stamp), obj.get("auto", False), group, session)
     if kind == "e":
         if keys != {"t", "id", "on"} or not isinstance(obj["id"], str) \
                 or not isinstance(obj["on"], bool):

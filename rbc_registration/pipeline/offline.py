@@ -15,6 +15,7 @@ from typing import Any, Mapping, NamedTuple, Optional, Sequence, Union
 import numpy as np
 from numpy.typing import NDArray
 
+from ..core.errors import InputError
 from ..core.accumulator import FiducialAccumulator, FiducialSet
 from ..core.constants import WORKING
 from ..core.model import RbcModel
@@ -29,7 +30,7 @@ from .targets import Targets, first_conflict, mean_by_id, with_truth
 Input = Union[PairMessage, PointMessage]
 
 
-class EvaluationError(ValueError):
+class EvaluationError(InputError):
     """Recorded data that give no model or unusable targets; the message says why."""
 
 
@@ -131,7 +132,8 @@ def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
             ingest.reject(RejectedMeasurement("malformed", f"{what}: {m.stamp_error}"))
         elif isinstance(m, PairMessage):
             ingest.measurement(PairArgs(m.fiducial_id or None, m.working, m.destination,
-                                        m.working_frame, m.destination_frame, m.stamp_s))
+                                        m.working_frame, m.destination_frame, m.stamp_s,
+                                        m.group, m.session))
         else:
             ingest.point(m.stream, m.xyz, m.frame_id, m.stamp_s)
     return Accumulated(ingest.fiducial_set(), dict(acc.rejected), tuple(log.lines),

@@ -25,7 +25,9 @@ class ModelState:
     ``warning``: what to check in a model that is served, one line, "" when nothing: a fiducial
     whose held-out error stands out (:func:`~rbc_registration.core.evaluation.blunders`, a
     typo'd coordinate or a wrong hole; errors in metres), one point under two or more ids
-    (:func:`~rbc_registration.core.repeats.twin_groups`).
+    (:func:`~rbc_registration.core.repeats.twin_groups`), sessions moved or kept apart
+    (:func:`session_warning`), fiducials that look grouped though no group was given
+    (:func:`~rbc_registration.core.warnings.model_warnings`).
     """
 
     model: Optional[RbcModel]
@@ -110,8 +112,22 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
     # The status and the snapshot report every sigma_L (computed on first access, O(J^2)): here,
     # in the recompute thread, rather than on the executor at the first status.
     _ = model.restoration.sigma_l
-    warning = "; ".join(filter(None, (left_out, *model_warnings(model, "m"))))
+    warning = "; ".join(filter(None, (left_out, session_warning(fiducials),
+                                      *model_warnings(model, "m",
+                                                      fiducials.first_stamps or None))))
     return ModelState(model, fiducials, settings, "", stamp_ns, warning)
+
+
+def session_warning(fiducials: FiducialSet) -> str:
+    """The sessions' line of :attr:`ModelState.warning`: the sessions moved (re-stationed) and
+    kept apart (:meth:`~rbc_registration.core.sessions.SessionPlan.warning`, metres), and when
+    each session starts (the stamp of its first measurement); "" with one session or nothing
+    to say."""
+    plan = fiducials.sessions
+    if plan is None or not plan.warning():
+        return ""
+    when = ", ".join(f"{s!r} at {t:.3f} s" for s, t in fiducials.session_starts)
+    return plan.warning("m") + (f" (sessions start at stamp {when})" if when else "")
 
 
 def with_warning(state: ModelState, line: str) -> ModelState:
@@ -127,4 +143,4 @@ def _build(fiducials: FiducialSet, settings: Settings,
            previous: Optional[KrigingHyperparameters]) -> RbcModel:
     return build_model(fiducials.working, fiducials.destination, model_config(settings),
                        ids=list(fiducials.ids), repeat_statistics=fiducials.repeat_stats,
-                       kriging_warm_start=previous)
+                       kriging_warm_start=previous, groups=fiducials.groups)

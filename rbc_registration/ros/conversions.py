@@ -54,10 +54,12 @@ def array_to_vector3(xyz: Sequence[float]) -> Vector3:
 
 
 def fiducial_pair_to_args(msg: Any) -> PairArgs:
-    """``rbc_registration_interfaces/FiducialPair`` -> :class:`PairArgs` (empty id -> None)."""
+    """``rbc_registration_interfaces/FiducialPair`` -> :class:`PairArgs` (empty id -> None;
+    group and session as sent)."""
     w, d = msg.working_point, msg.destination_point
     return PairArgs(msg.fiducial_id or None, (w.x, w.y, w.z), (d.x, d.y, d.z), msg.header.frame_id,
-                    msg.destination_frame_id, stamp_to_seconds(msg.header.stamp))
+                    msg.destination_frame_id, stamp_to_seconds(msg.header.stamp), msg.group,
+                    msg.session)
 
 
 def point_stamped_to_tuple(msg: PointStamped) -> tuple[tuple[float, float, float], str, float]:
@@ -99,14 +101,16 @@ def _to_xyz(points: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.f
 
 
 def target_corrections_to_msgs(tc: Any, z: NDArray[np.float64], method: str,
-                               destination_frame: str,
-                               stamps: Sequence[Time]) -> list[TargetCorrection]:
+                               destination_frame: str, stamps: Sequence[Time],
+                               label: str = "") -> list[TargetCorrection]:
     """``core.model.TargetCorrections`` -> one ``TargetCorrection`` message per target.
 
     :param z: the targets' z, used in 2D for the destination points (passed through).
     :param method: the decision's method (``tc.destination`` is its point; ``uncorrected``:
         no correction applied).
     :param stamps: the targets' stamps, copied into the answers.
+    :param label: the ``method`` field when not ``method`` itself (e.g. ``kriging
+        (calibration file)``).
     """
     # Whole arrays to Python floats once (tolist is exact), then messages built by fast_msgs.
     corrected = _to_xyz(np.asarray(tc.corrected), z).tolist()
@@ -126,8 +130,8 @@ def target_corrections_to_msgs(tc: Any, z: NDArray[np.float64], method: str,
         d = u if not applied else fast_msgs.point_stamped(stamps[k], destination_frame,
                                                           fast_msgs.point(*destination[k]))
         out.append(fast_msgs.target_correction(d, c, u, fast_msgs.vector3(*correction[k]),
-                                               applied, inside[k], expected[k], method,
-                                               tre[k], bound[k]))
+                                               applied, inside[k], expected[k],
+                                               label or method, tre[k], bound[k]))
     return out
 
 

@@ -192,4 +192,5 @@ def pair_message(record: Any, args: PairArgs, settings: Settings) -> FiducialPai
     msg.working_point = conv.array_to_point(args.working_xyz)
     msg.destination_frame_id = settings.destination_frame
     msg.destination_point = conv.array_to_point(args.destination_xyz)
+    msg.group, msg.session = record.group, record.session
     return msg

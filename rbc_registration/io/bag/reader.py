@@ -216,7 +216,8 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                     pair = PairMessage(log_ns, stamp, msg.fiducial_id,
                                        _xyz(msg.working_point), msg.header.frame_id,
                                        _xyz(msg.destination_point), msg.destination_frame_id,
-                                       _stamp_ns(msg.header), stamp_error)
+                                       _stamp_ns(msg.header), stamp_error, msg.group,
+                                       msg.session)
                     (ins if conn.topic == topics.fiducial_pairs else tgts).append(pair)
                 else:
                     stream = WORKING if conn.topic == topics.working_point else DESTINATION

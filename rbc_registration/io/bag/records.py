@@ -18,6 +18,7 @@ import re
 from pathlib import Path
 from typing import NamedTuple, Union
 
+from ...core.errors import InputError
 from ...pipeline.inputs import PairMessage, PointMessage
 
 FIDUCIAL_PAIR = "rbc_registration_interfaces/msg/FiducialPair"
@@ -84,7 +85,7 @@ def topic_name_error(name: str) -> str:
     return ""
 
 
-class BagError(ValueError):
+class BagError(InputError):
     """A bag that cannot be used; the message names the bag and the problem."""
 
 
@@ -133,7 +134,9 @@ class RawMessage(NamedTuple):
 
 
 class OutMessage(NamedTuple):
-    """A message to write: ``kind`` ``"pair"`` (FiducialPair) or ``"point"`` (PointStamped)."""
+    """A message to write: ``kind`` ``"pair"`` (FiducialPair) or ``"point"`` (PointStamped);
+    ``group`` and ``session`` as in ``FiducialPair`` (pairs only; empty: its own group, the
+    current session)."""
 
     topic: str
     kind: str
@@ -143,3 +146,5 @@ class OutMessage(NamedTuple):
     fiducial_id: str = ""
     destination_frame: str = ""
     destination: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    group: str = ""
+    session: str = ""

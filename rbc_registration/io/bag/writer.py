@@ -53,7 +53,8 @@ def write_bag(path: Union[str, Path], messages: Iterable[OutMessage], storage: s
             if m.kind == "pair":
                 msg = Pair(header=header, fiducial_id=m.fiducial_id, working_point=Point(*m.xyz),
                            destination_frame_id=m.destination_frame,
-                           destination_point=Point(*m.destination))
+                           destination_point=Point(*m.destination), group=m.group,
+                           session=m.session)
             else:
                 msg = Stamped(header=header, point=Point(*m.xyz))
             writer.write(conns[m.topic], m.stamp_ns,
