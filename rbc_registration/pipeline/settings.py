@@ -105,7 +105,8 @@ SPECS: dict[str, Spec] = {
                           "stale; 0 = off (so a bag replayed with its old stamps is accepted).",
                           low=0.0, high=1e9),
     "max_targets": Spec(10_000, "Most targets in one ~/correct_targets request; a larger "
-                        "request is refused with success=false.", low=1, high=10_000_000),
+                        "request is refused with success=false (CorrectTargets holds at most "
+                        "100,000: a client cannot send more).", low=1, high=100_000),
     "debounce_period": Spec(0.2, "Recompute once no measurement arrived for this long [s] "
                             "(at the latest 10x this after the first pending one).",
                             low=0.0, high=60.0),

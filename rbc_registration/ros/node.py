@@ -21,7 +21,7 @@ from geometry_msgs.msg import PointStamped, TransformStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -49,6 +49,7 @@ from . import conversions as conv
 from . import params, samples, saved
 from .batching import batched_subscription
 from .guards import guard_service
+from .lanes import LaneExecutor
 from .outputs import output_events
 from .param_callbacks import ParametersMixin
 from .planning import PlanningMixin
@@ -167,18 +168,24 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             batched_subscription(self, msg_type, topic, callback, qos, inputs,
                                  lambda: self._settings.input_batch)
         services = ReentrantCallbackGroup()
-        for srv_type, name, callback in (
-                (CorrectTarget, "~/correct_target", self._on_correct_target),
-                (CorrectTargets, "~/correct_targets", self._on_correct_targets),
-                (SetFiducialEnabled, "~/set_fiducial_enabled", self._on_set_fiducial_enabled),
-                (GetFiducials, "~/get_fiducials", self._on_get_fiducials),
-                (Trigger, "~/reset", self._on_reset),
-                (Trigger, "~/recompute", self._on_recompute),
-                (Trigger, "~/save", self._on_save),
-                (TakeSample, "~/take_sample", self._on_take_sample),
-                (SuggestNext, "~/suggest_next", self._on_suggest_next)):
+        # Each correction service in a group of its own, run by main()'s executor in a thread
+        # of its own (ros/lanes.py): a large ~/correct_targets request, taken and answered in
+        # its lane, never holds up another client's ~/correct_target.
+        one, many = MutuallyExclusiveCallbackGroup(), MutuallyExclusiveCallbackGroup()
+        #: The callback groups that get a thread of their own ({group: thread name}).
+        self.lanes = {one: "correct_target", many: "correct_targets"}
+        for srv_type, name, callback, group in (
+                (CorrectTarget, "~/correct_target", self._on_correct_target, one),
+                (CorrectTargets, "~/correct_targets", self._on_correct_targets, many),
+                (SetFiducialEnabled, "~/set_fiducial_enabled", self._on_set_fiducial_enabled, None),
+                (GetFiducials, "~/get_fiducials", self._on_get_fiducials, None),
+                (Trigger, "~/reset", self._on_reset, None),
+                (Trigger, "~/recompute", self._on_recompute, None),
+                (Trigger, "~/save", self._on_save, None),
+                (TakeSample, "~/take_sample", self._on_take_sample, None),
+                (SuggestNext, "~/suggest_next", self._on_suggest_next, None)):
             self.create_service(srv_type, name, guard_service(self.get_logger(), name, callback),
-                                callback_group=services)
+                                callback_group=services if group is None else group)
         # On the steady clock: with use_sim_time a paused or absent /clock would stop the
         # heartbeat of ~/status and /diagnostics (their stamps stay on the node clock).
         self.create_timer(s.status_period, self._publish_status,
@@ -339,7 +346,8 @@ def startup_logger_name(args: Optional[list[str]] = None) -> str:
 
 
 def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
-    """Console script ``registration_node``: spin the node on a single-threaded executor.
+    """Console script ``registration_node``: spin the node on a :class:`~.lanes.LaneExecutor`
+    (single-threaded; ``~/correct_target`` and ``~/correct_targets`` each in a thread of its own).
 
     :param node_options: passed to :class:`RegistrationNode` (e.g. ``write_snapshot``).
 
@@ -363,14 +371,18 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
         logger.fatal(f"cannot start: {exc}{hint}")
         raise SystemExit(1) from None
     node: Optional[RegistrationNode] = None
+    executor: Optional[LaneExecutor] = None
     code, spinning = 0, False
     try:
-        # Single-threaded: in rclpy it takes messages about twice as fast as the multi-threaded
-        # executor; model rebuilds run in their own thread, so services still answer meanwhile.
-        # Made before the node: a SIGTERM while the node is being made then stops it cleanly.
-        executor = SingleThreadedExecutor()
+        # Single-threaded but for the correction services' lanes (ros/lanes.py): in rclpy it
+        # takes messages about twice as fast as the multi-threaded executor; model rebuilds run
+        # in their own thread, so services still answer meanwhile. Made before the node: a
+        # SIGTERM while the node is being made then stops it cleanly.
+        executor = LaneExecutor()
         node = RegistrationNode(**node_options)
         executor.add_node(node)
+        for group, name in node.lanes.items():
+            executor.add_lane(group, name)
         freeze_startup_objects()    # shorter full garbage collections (runtime.py)
         spinning = True
         executor.spin()
@@ -399,6 +411,8 @@ def main(args: Optional[list[str]] = None, **node_options: Any) -> None:
                                                   f"{reason}")
             code = 1
     finally:
+        if executor is not None:
+            executor.shutdown()       # the lane threads joined before the node goes
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
