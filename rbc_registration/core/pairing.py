@@ -329,7 +329,7 @@ class StampPairer:
 
     def discard(self, stream: str, xyz: ArrayLike, stamp_s: float) -> bool:
         """Drop the buffered point of ``stream`` at ``xyz`` and ``stamp_s`` (recorded otherwise,
-        e.g. by ``~/take_sample``) without reporting it; whether there was one. It is no longer
+        e.g. by ``~/take_sample``) without reporting it; whether there was one. It is not
         a candidate of the ambiguity rule either: its stamp partner is buffered as usual."""
         key = (tuple(float(v) for v in np.asarray(xyz, dtype=np.float64)), float(stamp_s))
         buf = self._buffers[stream]

@@ -55,7 +55,7 @@ from .validation import as_points, check_spread, rounding
 ALL_CANDIDATES_MAX = 2000
 
 
-#: The largest ``within``: 10 x the best error is no longer "close to the best".
+#: The largest ``within``: 10 x the best error is not "close to the best".
 MAX_WITHIN = 10.0
 
 

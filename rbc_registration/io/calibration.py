@@ -4,7 +4,8 @@ A :class:`Calibration` is the transform ``destination ≈ R @ working + t`` as t
 pose of the **child** (working) frame in the **parent** (destination) frame, translation in
 metres and rotation as a unit quaternion ``(x, y, z, w)`` (REP 103, tf2's order), with the
 quality figures it was built with (the decision, σ, σ_L, the expected TRE of the transform
-alone and with the decision's corrections, fiducial count). 2D
+alone and with the decision's corrections, fiducial count) and, from a model, the ``answers``
+that let a node answer targets with it (:mod:`.calibration_answers`). 2D
 models are rotations about z with zero z translation. The file format is documented in
 docs/CALIBRATION.md. No rclpy: numpy, scipy, PyYAML and the standard library only.
 """
@@ -31,6 +32,7 @@ from ..core.frames import same_frame_problem
 from ..core.quaternion import (ORTHONORMAL_TOLERANCE, matrix_from_quaternion,
                                quaternion_from_matrix)
 from . import calibration_format as fields
+from .calibration_answers import Answers, read_answers
 from .calibration_format import FORMAT, FORMAT_VERSION, Decision
 
 __all__ = ["Calibration", "Decision", "FORMAT", "FORMAT_VERSION", "MAX_FILE_BYTES",
@@ -45,7 +47,10 @@ REGISTRATIONS = ("corrected", "uncorrected")  # which registration of the model 
 METHODS = ("uncorrected",) + INTERPOLATIONS    # decision.method: what targets get
 QUATERNION_TOLERANCE = 1e-6     # | |q| - 1 | up to this is normalised, beyond it refused
 PLANAR_TOLERANCE = 1e-9         # 2D: |qx|, |qy| [-] and |t_z| [m] at most this
-MAX_FILE_BYTES = 1 << 20        # a calibration is ~1 kB; anything over 1 MiB is not one
+#: A calibration is ~1 kB, plus ~200 bytes per fiducial of its answers (3 MB at kriging's most,
+#: 15,000 fiducials); anything over 16 MiB is not one.
+MAX_FILE_BYTES = 1 << 24
+ANSWERS_TOLERANCE = 1e-9        # the answers' registration against the file's transform [m, -]
 _ROUNDING = 8 * np.finfo(np.float64).eps  # a norm this close to 1 is unit: left as it is
 
 
@@ -75,6 +80,9 @@ class Calibration:
     :ivar n_fiducials: enabled fiducials the model was built from.
     :ivar created: when it was built, ISO 8601 in UTC (``2025-06-01T12:00:00.000000Z``).
     :ivar package_version: the rbc_registration version that built it.
+    :ivar answers: what answers targets (:class:`~.calibration_answers.Answers`: the fiducials,
+        their corrections, both registrations, the error model); None: the file publishes tf
+        only (files of format versions 1 and 2, exports of a report).
     :raises ValueError: naming the field, when a value is not valid (see docs/CALIBRATION.md).
     """
 
@@ -94,6 +102,7 @@ class Calibration:
     n_fiducials: int
     created: str
     package_version: str
+    answers: Optional[Answers] = None
 
     def __post_init__(self) -> None:
         fields.check_frame("parent_frame", self.parent_frame)
@@ -140,6 +149,36 @@ class Calibration:
         fields.check_int("n_fiducials", self.n_fiducials, minimum=self.dimension)
         object.__setattr__(self, "created", fields.utc_time("created", self.created))
         fields.check_text("package_version", self.package_version)
+        if self.answers is not None:
+            self._check_answers()
+
+    def _check_answers(self) -> None:
+        """The answers belong to this file: its dimension, fiducial count, method and transform,
+        with kriging's hyper-parameters where the answers need them."""
+        a = self.answers
+        if not isinstance(a, Answers):
+            raise ValueError(f"answers: must be an Answers record, got {type(a).__name__}")
+        if a.dimension != self.dimension:
+            raise ValueError(f"answers: fiducials of dimension {a.dimension} in a "
+                             f"{self.dimension}D calibration")
+        if len(a.ids) != self.n_fiducials:
+            raise ValueError(f"answers.fiducials: {len(a.ids)} fiducials, but n_fiducials is "
+                             f"{self.n_fiducials}")
+        if a.method != self.decision.method:
+            raise ValueError(f"answers.error_model: of the method {a.method!r}, but "
+                             f"decision.method is {self.decision.method!r}")
+        if "kriging" in a.needs() and a.kriging is None:
+            raise ValueError("answers.kriging: null, but the answers need kriging (interpolation "
+                             "kriging, decision.method kriging or a scaled error model)")
+        rotation, translation = a.registration(self.registration)
+        d = self.dimension
+        off = max(float(np.max(np.abs(rotation - self.rotation_matrix()[:d, :d]))),
+                  float(np.max(np.abs(translation - np.array(self.translation[:d])))
+                        / max(1.0, float(np.max(np.abs(translation))))))
+        if off > ANSWERS_TOLERANCE:
+            raise ValueError(f"answers.{self.registration}: differs from translation/rotation by "
+                             f"{off:.3g} (more than {ANSWERS_TOLERANCE:g}): not this file's "
+                             f"registration")
 
     def _check_sigma(self) -> None:
         if (self.sigma is None) != (self.sigma_axis is None):
@@ -176,7 +215,7 @@ def calibration_from_registration(
         sigma_l: ArrayLike, expected_tre_rigid: Optional[float],
         expected_tre_with_corrections: Optional[float], n_fiducials: int,
         clock: Callable[[], float] = time.time,
-        version: Optional[str] = None) -> Calibration:
+        version: Optional[str] = None, answers: Optional[Answers] = None) -> Calibration:
     """A :class:`Calibration` of the registration ``destination ≈ rotation @ working +
     translation`` (a :class:`~rbc_registration.core.registration.Registration`'s fields).
 
@@ -187,6 +226,8 @@ def calibration_from_registration(
     :param sigma: σ [m] (RMS of a point, all axes) or None; ``sigma_axis`` = σ / √d.
     :param clock: seconds since the epoch (UTC) for ``created``.
     :param version: the package version (default: :func:`package_version`).
+    :param answers: what answers targets (:func:`~.calibration_answers.answers_of_model`), or
+        None.
     :raises ValueError: as :class:`Calibration` and :func:`quaternion_from_matrix`.
     """
     r = np.asarray(rotation, dtype=np.float64)
@@ -210,7 +251,7 @@ def calibration_from_registration(
         else float(expected_tre_with_corrections),
         n_fiducials=int(n_fiducials),
         created=created.isoformat(timespec="microseconds").replace("+00:00", "Z"),
-        package_version=package_version() if version is None else version)
+        package_version=package_version() if version is None else version, answers=answers)
 
 
 def package_version() -> str:
@@ -263,9 +304,11 @@ def expected_errors(cal: Calibration) -> str:
     line = f"expected target error: {mm(cal.expected_tre_rigid)} with this transform alone " \
            f"(expected_tre_rigid)"
     if cal.decision.method in INTERPOLATIONS:
+        where = ("from this file's answers too" if cal.answers is not None
+                 else "not in this file")
         line += (f"; {mm(cal.expected_tre_with_corrections)} only with the model's "
                  f"{cal.decision.method} corrections of each target (expected_tre_with_"
-                 f"corrections: the node's ~/correct_targets; not in this file)")
+                 f"corrections: the node's ~/correct_targets; {where})")
     return line
 
 
@@ -280,7 +323,8 @@ def write_calibration(path: str, cal: Calibration) -> None:
               "# parent_frame, p_parent = R(rotation) p_child + translation; metres, REP 103.\n"
               f"# {static_transform_publisher_command(cal)}\n"
               "# expected_tre_rigid: this transform alone; expected_tre_with_corrections: only\n"
-              "# with decision.method's corrections of each target (not in this file).\n")
+              "# with decision.method's corrections of each target, held in answers "
+              "(null: none).\n")
     text = header + yaml.safe_dump(cal.to_mapping(), sort_keys=False, allow_unicode=True,
                                    default_flow_style=None, width=100)
     directory = os.path.dirname(os.path.abspath(path))
@@ -345,6 +389,12 @@ def read_calibration(path: str) -> Calibration:
     if data is None:
         raise ValueError(f"{path}: empty (no YAML document): not a calibration file")
     try:
-        return Calibration(**fields.from_mapping(data))
+        kwargs = fields.from_mapping(data)
+        if kwargs["answers"] is not None:
+            dimension, method = kwargs["dimension"], kwargs["decision"].method
+            if dimension not in (2, 3):       # the record says so, naming the field
+                return Calibration(**{**kwargs, "answers": None})
+            kwargs["answers"] = read_answers(kwargs["answers"], dimension, method)
+        return Calibration(**kwargs)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None

@@ -20,10 +20,11 @@ from ..core.frames import frame_id_problem
 from ..core.validation import MAX_ABS_COORDINATE
 
 FORMAT = "rbc_registration_calibration"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 #: Versions this reader reads: 1 had one ``expected_tre`` (the decision's figure, read as
-#: ``expected_tre_with_corrections``; ``expected_tre_rigid`` then unknown).
-READABLE_VERSIONS = (1, 2)
+#: ``expected_tre_with_corrections``; ``expected_tre_rigid`` then unknown); 1 and 2 have no
+#: ``answers`` (read as null: the file publishes tf, it answers no targets).
+READABLE_VERSIONS = (1, 2, 3)
 UNITS = "m"
 MAX_TEXT = 1000  # characters of a frame id, mode, reason or version string
 
@@ -33,7 +34,9 @@ DECISION_KEYS = ("mode", "method", "apply", "reason")
 KEYS = ("format", "format_version", "parent_frame", "child_frame", "dimension", "units",
         "registration", "translation", "rotation", "fre_rms", "decision", "sigma",
         "sigma_axis", "sigma_L", "expected_tre_rigid", "expected_tre_with_corrections",
-        "n_fiducials", "created", "package_version")
+        "n_fiducials", "created", "package_version", "answers")
+#: The keys of a version 2 file (no ``answers``).
+KEYS_V2 = KEYS[:-1]
 #: The keys of a version 1 file.
 KEYS_V1 = ("format", "format_version", "parent_frame", "child_frame", "dimension", "units",
            "registration", "translation", "rotation", "fre_rms", "decision", "sigma",
@@ -189,6 +192,8 @@ def to_mapping(cal: Any) -> dict[str, Any]:
             data[key] = dataclasses.asdict(cal.decision)
         elif key == "sigma_L":
             data[key] = list(cal.sigma_l)
+        elif key == "answers":      # io.calibration_answers.Answers, or None
+            data[key] = None if cal.answers is None else cal.answers.to_mapping()
         elif key not in data:
             data[key] = getattr(cal, key)
     return {key: data[key] for key in KEYS}
@@ -212,6 +217,8 @@ def _mapping(name: str, value: Any, keys: Sequence[str]) -> dict[str, Any]:
 def from_mapping(data: Any) -> dict[str, Any]:
     """The :class:`~rbc_registration.io.calibration.Calibration` keyword arguments of a parsed
     document; checks its structure (format, version, units, keys), the record checks values.
+    ``answers`` is the parsed mapping (or None), read by the caller
+    (:func:`~rbc_registration.io.calibration_answers.read_answers`).
 
     :raises ValueError: naming the field.
     """
@@ -224,10 +231,12 @@ def from_mapping(data: Any) -> dict[str, Any]:
     if version is not None and version not in READABLE_VERSIONS:
         raise ValueError(f"format_version: {version} is not supported (this reader knows "
                          f"versions {', '.join(map(str, READABLE_VERSIONS))})")
-    data = _mapping("", data, KEYS_V1 if version == 1 else KEYS)
+    data = _mapping("", data, {1: KEYS_V1, 2: KEYS_V2}.get(version, KEYS))
     if version == 1:   # its expected_tre was the decision's figure (docs/CALIBRATION.md)
         data = {**data, "expected_tre_rigid": None,
                 "expected_tre_with_corrections": data["expected_tre"]}
+    if version in (1, 2):
+        data = {**data, "answers": None}
     if data["units"] != UNITS:
         raise ValueError(f"units: must be {UNITS!r} (all lengths are metres), got "
                          f"{_quote(data['units'])}")

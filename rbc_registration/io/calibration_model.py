@@ -2,7 +2,8 @@
 state, the node's snapshot (``state_dir/calibration.json``) or a ``register`` / ``evaluate`` JSON
 report; and the check that a loaded calibration belongs to the node's frames. No rclpy.
 
-Units: a calibration is in metres; a report in millimetres (its ``unit``) is converted.
+Units: a calibration is in metres; a report in another unit of
+:data:`~rbc_registration.core.constants.METRES_PER_UNIT` (its ``unit``) is converted.
 """
 
 from __future__ import annotations
@@ -12,23 +13,54 @@ import os
 import time
 from typing import Any, Callable, Mapping, NamedTuple, Optional
 
-from ..core.constants import M_PER_MM, UNCORRECTED
+from ..core.constants import METRES_PER_UNIT, UNCORRECTED, UNIT_ALIASES
 from ..core.decision import Decision as ModelDecision
+from ..pipeline.named import calibration_name_problem, is_calibration_name
 from ..pipeline.settings import Settings
 from ..pipeline.snapshot import SNAPSHOT_FORMAT
 from ..pipeline.state import ModelState
 from .calibration import REGISTRATIONS, Calibration, Decision, calibration_from_registration
+from .calibration_answers import answers_of_model
 from .calibration_format import _quote, check_number
 
 #: The calibration file ``~/save`` writes into ``state_dir``.
 CALIBRATION_NAME = "calibration.yaml"
-#: Metres per unit of a report's ``unit`` label.
-METRES_PER_UNIT = {"m": 1.0, "mm": M_PER_MM}
+#: The directory in ``state_dir`` of named calibrations (``calibration_name``), ``NAME.yaml``.
+CALIBRATIONS_DIR = "calibrations"
 
 
 def calibration_path(state_dir: str) -> str:
     """Path of the calibration file in ``state_dir``."""
     return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), CALIBRATION_NAME)
+
+
+def named_calibration_path(state_dir: str, name: str) -> str:
+    """Path of the calibration named ``name`` in ``state_dir``: ``calibrations/NAME.yaml``.
+
+    :raises ValueError: when ``name`` is not a calibration name
+        (:func:`~rbc_registration.pipeline.named.calibration_name_problem`).
+    """
+    problem = calibration_name_problem(name)
+    if problem:
+        raise ValueError(problem)
+    return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), CALIBRATIONS_DIR,
+                        f"{name}.yaml")
+
+
+def resolve_calibration_file(value: str, state_dir: str) -> str:
+    """The absolute path of a ``calibration_file`` value: a bare name (no ``/``, no ``.yaml``;
+    :func:`~rbc_registration.pipeline.named.is_calibration_name`) is
+    ``state_dir/calibrations/NAME.yaml``, anything else a path (``~`` expanded).
+
+    :raises ValueError: for a name without ``state_dir``, or not a valid name.
+    """
+    if not is_calibration_name(value):
+        return os.path.abspath(os.path.expanduser(value))
+    if not state_dir:
+        raise ValueError(f"calibration_file {value!r} is a calibration name, read from "
+                         f"state_dir/{CALIBRATIONS_DIR}/, but state_dir is empty: give the "
+                         f"file's path")
+    return named_calibration_path(state_dir, value)
 
 
 def decision_record(decision: ModelDecision) -> Decision:
@@ -85,7 +117,8 @@ def _document_decision(data: Mapping[str, Any], where: str, scale: float) -> _Fi
 def calibration_from_state(state: ModelState, settings: Settings, registration: str,
                            clock: Optional[Callable[[], float]] = None) -> Calibration:
     """The calibration of the served model: ``registration`` (``corrected`` / ``uncorrected``)
-    from destination_frame (parent) to working_frame (child); ``created`` from the model's stamp
+    from destination_frame (parent) to working_frame (child), with the model's ``answers`` (a
+    node loading it answers targets as this model does); ``created`` from the model's stamp
     (node clock) unless ``clock`` is given.
 
     :raises ValueError: without a model, or for an unknown ``registration``.
@@ -106,7 +139,8 @@ def calibration_from_state(state: ModelState, settings: Settings, registration: 
         # then agrees with the uncorrected one to second order in the bias (core/restoration).
         expected_tre_rigid=rigid_expected_tre(model.decision),
         expected_tre_with_corrections=expected_tre(model.decision),
-        n_fiducials=len(model.ids), clock=clock or (lambda: stamp_s))
+        n_fiducials=len(model.ids), clock=clock or (lambda: stamp_s),
+        answers=answers_of_model(model))
 
 
 def _get(data: Mapping[str, Any], key: str, where: str) -> Any:
@@ -140,6 +174,8 @@ def _unit_scale(data: Mapping[str, Any], where: str, key: str, unit: Optional[st
     records none), else ``unit`` (``--unit``); a ``unit`` other than the recorded one is
     refused, naming both."""
     recorded = data.get(key, default)
+    recorded = UNIT_ALIASES.get(recorded, recorded) if isinstance(recorded, str) else recorded
+    unit = UNIT_ALIASES.get(unit, unit) if unit is not None else None
     if recorded is None:
         if unit is None:
             raise ValueError(f"{where}: {key}: missing: the file records no length unit; give "
@@ -179,7 +215,7 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
         ``destination_frame``; a report that records none: ``world``, said through ``note``).
     :param child_frame: the working frame (default: the recorded ``working_frame``, or
         ``tracker``, said through ``note``).
-    :param unit: the length unit (``m`` or ``mm``) of a source that records none; one that
+    :param unit: the length unit (of ``METRES_PER_UNIT``) of a source that records none; one that
         records its unit (a report's ``unit``, a snapshot's ``units``) is read in it, and a
         different ``unit`` is refused.
     :param mtime: seconds since the epoch for ``created`` of a report (it holds no time).

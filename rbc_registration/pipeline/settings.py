@@ -16,12 +16,16 @@ from ..core.constants import (DECISION_MODES, INTERPOLATIONS, MAX_RESTORATION_ST
                                RESTORATIONS, DecisionMode, rho_thresholds_error)
 from ..core.frames import frame_id_problem, same_frame_problem
 from ..core.records import quote
+from .named import (calibration_name_problem, is_calibration_name, parse_target_frames,
+                    target_frames_problem)
 
 
 class Spec(NamedTuple):
     """One parameter: default value, description, whether it is read-only after start, the
-    closed range ``(low, high)`` of a number, whether ``low`` itself is excluded, and the
-    allowed strings."""
+    closed range ``(low, high)`` of a number, whether ``low`` itself is excluded, the allowed
+    strings, and whether it changes the model built from the same fiducials (the start's
+    warning about a snapshot built with other parameters names only those). A tuple default
+    is a list of strings (a ROS string array)."""
 
     default: Any
     description: str
@@ -30,6 +34,7 @@ class Spec(NamedTuple):
     high: Optional[float] = None
     low_exclusive: bool = False
     choices: tuple[str, ...] = ()
+    changes_model: bool = False
 
 
 TF_MODES = ("corrected", "uncorrected", "none")
@@ -54,29 +59,34 @@ SPECS: dict[str, Spec] = {
     "destination_frame": Spec("world", "Frame the registration maps into, e.g. the robot base or "
                               "world. Read-only.", read_only=True),
     "dimension": Spec(3, "3, or 2 to register x, y only as in the paper (z of a target is "
-                      "passed through unchanged). Read-only.", read_only=True, low=2, high=3),
+                      "passed through unchanged). Read-only.", read_only=True, low=2, high=3,
+                      changes_model=True),
     "restoration": Spec("iterative", "How the rigid-body condition is restored: 'iterative' "
-                        "(the paper's steps) or 'closed-form'.", choices=RESTORATIONS),
+                        "(the paper's steps) or 'closed-form'.", choices=RESTORATIONS,
+                        changes_model=True),
     "restoration_steps": Spec(2, "Steps of the iterative restoration (the paper uses 2).",
-                              low=1, high=MAX_RESTORATION_STEPS),
+                              low=1, high=MAX_RESTORATION_STEPS, changes_model=True),
     "interpolation": Spec("paper", "Interpolation of the fiducial corrections at a target "
-                          "(paper eq. 5): 'paper' or 'kriging'.", choices=INTERPOLATIONS),
+                          "(paper eq. 5): 'paper' or 'kriging'.", choices=INTERPOLATIONS,
+                          changes_model=True),
     "sigma": Spec(0.0, "Known noise sigma [m] of one working-frame measurement, in the sense of "
                   "the sigma estimated from repeats (RMS distance of a measurement from the "
                   "fiducial's mean, all axes together; per axis it is sigma / sqrt(dimension)); "
                   "the paper's rho = sigma_L0 / sigma uses it (pure noise: rho = sqrt(2 / "
                   "dimension)). 0 = unknown: estimated from fiducials measured >= 2 times. "
-                  "Give sigma or sigma_axis, not both.", low=0.0, high=1.0),
+                  "Give sigma or sigma_axis, not both.", low=0.0, high=1.0,
+                  changes_model=True),
     "sigma_axis": Spec(0.0, "Known noise [m] per axis of one working-frame measurement "
                        "(sigma = sigma_axis * sqrt(dimension); a 0.11 mm 'per axis' spec is "
                        "sigma_axis 0.00011). 0 = unknown. Give sigma or sigma_axis, not both.",
-                       low=0.0, high=1.0),
+                       low=0.0, high=1.0, changes_model=True),
     "decision": Spec(DecisionMode.CV.value, "Whether and how targets get corrections: 'cv' "
                      "(cross-validated on the fiducials, needs no sigma: a correction is applied "
                      "only when it predicts held-out fiducials better than the uncorrected "
                      "registration with 95 % confidence), 'rho' (the paper's rule on rho, needs "
                      "sigma), 'on' (always the configured interpolation), 'off' (never). rho is "
-                     "reported in every mode.", choices=DECISION_MODES),
+                     "reported in every mode.", choices=DECISION_MODES,
+                     changes_model=True),
     "kriging_warm_start": Spec(False, "Start each rebuild's kriging fit from the served "
                                "model's hyper-parameters (faster when few fiducials changed). "
                                "Off by default: a warm-started fit ends within the optimiser's "
@@ -84,11 +94,12 @@ SPECS: dict[str, Spec] = {
                                "journal (always a cold fit) would answer ~1e-13 m differently."),
     "rho_reject": Spec(1.0, "rho = sigma_L0 / sigma below this: the paper's rule says do not "
                        "correct (paper: rho < 1 makes registration worse). Must be <= "
-                       "rho_apply.", low=0.0, high=1e6),
+                       "rho_apply.", low=0.0, high=1e6, changes_model=True),
     "rho_apply": Spec(2.5, "rho at or above this: the paper's rule says correct (decision "
-                      "'rho'; paper: rho >= 2.5 is beneficial).", low=0.0, high=1e6),
+                      "'rho'; paper: rho >= 2.5 is beneficial).", low=0.0, high=1e6,
+                      changes_model=True),
     "min_fiducials": Spec(4, "Enabled fiducials needed before a model is built.",
-                          low=3, high=1_000_000),
+                          low=3, high=1_000_000, changes_model=True),
     "pair_slop": Spec(0.02, "Largest stamp difference [s] between a ~/working_point and a "
                       "~/destination_point to pair them.", low=0.0, high=10.0, low_exclusive=True),
     "merge_radius": Spec(0.005, "A pair without an id joins the fiducial whose mean "
@@ -99,7 +110,7 @@ SPECS: dict[str, Spec] = {
                              "model cannot be built, fiducials whose distances to the others "
                              "differ between the frames by more than this and 20x the "
                              "fiducials' median are left out of it, named in ~/status; 0 = off.",
-                             low=0.0, high=100.0),
+                             low=0.0, high=100.0, changes_model=True),
     "max_stamp_age": Spec(0.0, "A measurement whose header stamp is more than this [s] older "
                           "than the node clock, or more than this ahead of it, is rejected as "
                           "stale; 0 = off (so a bag replayed with its old stamps is accepted).",
@@ -136,8 +147,19 @@ SPECS: dict[str, Spec] = {
     "calibration_file": Spec("", "Calibration YAML (docs/CALIBRATION.md) loaded at start and "
                              "published on ~/transform (registration corrected) or "
                              "~/transform_uncorrected (uncorrected) and /tf_static until a live "
-                             "model is built; its frames and dimension must be the node's; "
-                             "empty = none. Read-only.", read_only=True),
+                             "model is built, answering ~/correct_target(s) from its answers; "
+                             "its frames and dimension must be the node's; a bare NAME (no '/', "
+                             "no .yaml) is state_dir/calibrations/NAME.yaml; empty = none. "
+                             "Read-only.", read_only=True),
+    "calibration_name": Spec("", "Name of the calibration ~/save writes: "
+                             "state_dir/calibrations/NAME.yaml (loaded again with "
+                             "calibration_file:=NAME); empty = state_dir/calibration.yaml. "
+                             "Letters, digits, '_', '-', '.'."),
+    "target_frames": Spec((), "Named targets published on /tf_static as corrected destination "
+                          "frames: a list of 'NAME:X,Y,Z' (X, Y, Z [m] in working_frame); each "
+                          "is a child frame NAME of destination_frame at the target's "
+                          "~/correct_target destination, replaced with every model; empty = "
+                          "none."),
     "journal_fsync": Spec(False, "fsync the journal after every record (survives power loss; "
                           "slower). Default: flush to the OS per record (survives SIGKILL). "
                           "Read-only.", read_only=True),
@@ -218,6 +240,8 @@ class Settings:
     input_batch: int
     state_dir: str
     calibration_file: str
+    calibration_name: str
+    target_frames: tuple[str, ...]
     journal_fsync: bool
     stale_after: float
     status_period: float
@@ -246,6 +270,9 @@ class Settings:
         error = validate(merged)
         if error:
             raise ValueError(error)
+        for name, spec in SPECS.items():   # a ROS string array (a list; None when empty)
+            if isinstance(spec.default, tuple):
+                merged[name] = tuple(merged[name] or ())
         return cls(**{f.name: merged[f.name] for f in fields(cls)})
 
     def replace(self, **changes: Any) -> "Settings":
@@ -266,6 +293,8 @@ def validate_one(name: str, value: Any) -> Optional[str]:
     if spec is None:
         return f"unknown parameter {name!r}"
     kind = type(spec.default)
+    if kind is tuple:
+        return parse_target_frames(value)[1]
     if kind is bool:
         if not isinstance(value, bool):
             return f"{name} must be a bool, got {value!r}"
@@ -280,6 +309,13 @@ def validate_one(name: str, value: Any) -> Optional[str]:
         if problem:
             empty = " (or empty)" if name.startswith("sample_tf_") else ""
             return f"{name} is a tf frame id{empty}: it {problem}, got {quote(value)}"
+        if name == "calibration_name" and value:
+            problem = calibration_name_problem(value)
+            return f"calibration_name: {problem}" if problem else None
+        if name == "calibration_file" and is_calibration_name(value):
+            problem = calibration_name_problem(value)
+            return (f"calibration_file {quote(value)} is a calibration name (no '/', no .yaml): "
+                    f"{problem}; or give the file's path" if problem else None)
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return f"{name} must be a number, got {value!r}"
@@ -309,6 +345,14 @@ def validate(values: Mapping[str, Any]) -> Optional[str]:
                               get("working_frame"))
     if same:
         return f"working_frame {same}"
+    problem = target_frames_problem(get("target_frames"), get("working_frame"),
+                                    get("destination_frame"))
+    if problem:
+        return problem
+    if is_calibration_name(get("calibration_file")) and not get("state_dir"):
+        return (f"calibration_file {get('calibration_file')!r} is a calibration name (no '/', "
+                f"no .yaml), read from state_dir/calibrations/, but state_dir is empty: give the "
+                f"file's path")
     if get("sample_tf_parent") not in ("", get("destination_frame")):
         return (f"sample_tf_parent must be empty or destination_frame "
                 f"{get('destination_frame')!r}, got {get('sample_tf_parent')!r}: a tf "

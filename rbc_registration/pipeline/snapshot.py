@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO, Callable
 
 from .files import check_regular, open_private, read_regular
 from .jsonable import json_clean, registration_json
+from .settings import SPECS
 
 if TYPE_CHECKING:
     from .state import ModelState
@@ -152,13 +153,16 @@ def _tidy(state_dir: str) -> tuple[list[str], dict[str, Any] | None]:
     return warnings, snapshot
 
 
-#: Settings not compared by :func:`changed_settings` (a path, resolved differently per start).
-_NOT_COMPARED = frozenset({"state_dir"})
+#: The settings :func:`changed_settings` compares: those that change the model built from the
+#: same fiducials (``Spec.changes_model``); others (paths, ``calibration_file``, ``point_mode``,
+#: QoS, periods) change what the node does with its inputs or answers, not this model.
+COMPARED = tuple(name for name, spec in SPECS.items() if spec.changes_model)
 
 
 def changed_settings(state_dir: str, settings: Any) -> str:
     """One line naming the settings of ``state_dir``'s snapshot (the last model of the previous
-    run) that differ from ``settings`` (this start's), or "" (no snapshot, none differ).
+    run) that differ from ``settings`` (this start's) among those that change the model
+    (:data:`COMPARED`), or "" (no snapshot, none differ).
 
     Parameters changed at runtime are not kept across a restart (ROS parameters come from the
     start-up ones: ``params_file``, launch arguments): the journal gives back every measurement,
@@ -180,8 +184,8 @@ def _settings_diff(snapshot: dict[str, Any] | None, settings: Any, path: str) ->
     if not isinstance(before, dict):
         return ""
     now = json_clean({k: getattr(settings, k) for k in settings.__dataclass_fields__})
-    diff = [f"{k} {before[k]!r} (now {now[k]!r})" for k in now
-            if k in before and k not in _NOT_COMPARED and before[k] != now[k]]
+    diff = [f"{k} {before[k]!r} (now {now[k]!r})" for k in COMPARED
+            if k in before and k in now and before[k] != now[k]]
     if not diff:
         return ""
     return (f"the last model ({path}) was built with other parameters than this start's: "

@@ -96,7 +96,7 @@ class ParametersMixin:
             return
         self._settings = self._settings.replace(**changes)
         self._ingest.configure(self._settings)
-        if "tf_broadcast" in changes:
+        if "tf_broadcast" in changes or "target_frames" in changes:
             with self._pub_lock:
                 self._publish_tf()
         self.get_logger().info(f"parameters changed: {changes}")

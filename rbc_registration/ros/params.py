@@ -31,7 +31,8 @@ def unknown_overrides(names: Iterable[str]) -> str:
             f"(its parameters: msg_docs/README.md)")
 
 #: ROS parameter type names of the Python types of :data:`SPECS` defaults.
-ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string"}
+ROS_TYPE_NAMES = {bool: "bool", int: "integer", float: "double", str: "string",
+                  tuple: "string array"}
 
 
 def type_error(name: str, got_type: str, value: Any, declared_type: str = "") -> str:
@@ -91,8 +92,15 @@ def declare(node: Any) -> Settings:
                                                             to_value=float(spec.high), step=0.0)]
             if spec.low_exclusive:
                 desc.additional_constraints = f"> {spec.low:g}"
+        default = spec.default
+        if isinstance(default, tuple):
+            # A string array: rclpy types an empty default as a byte array, and a params file's
+            # `[]` (or `ros2 param set ... "[]"`) comes as another type or none: typed by the
+            # on-set callback (Settings), which reads an empty list of any kind as none.
+            desc.dynamic_typing, default = True, list(default)
+            desc.additional_constraints = "a list of strings"
         try:
-            values[name] = node.declare_parameter(name, spec.default, desc).value
+            values[name] = node.declare_parameter(name, default, desc).value
         except InvalidParameterTypeException:
             given = node._parameter_overrides[name]
             raise ValueError(type_error(name, given.type_.name, given.value)) from None

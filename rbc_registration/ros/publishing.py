@@ -1,20 +1,24 @@
 """What ``registration_node`` publishes about its model (a mixin of
 :class:`~rbc_registration.ros.node.RegistrationNode`): the corrected and uncorrected
-transforms, ``/tf_static``, the markers, ``~/status`` with its diagnostics, and the calibration
-snapshot. See msg_docs/README.md for the topics and frames.
+transforms, ``/tf_static`` (with the named targets of ``target_frames``), the markers,
+``~/status`` with its diagnostics, and the calibration snapshot. See msg_docs/README.md for the
+topics and frames.
 """
 
 from __future__ import annotations
 
 from typing import Any, Mapping, Optional, Sequence
 
+import numpy as np
 from rbc_registration_interfaces.msg import RegistrationStatus
 
+from ..pipeline.named import parse_target_frames
 from ..pipeline.snapshot import snapshot_json, snapshot_path
 from ..pipeline.state import ModelState
 from . import conversions as conv
 from .markers import markers_msg
 from .status import diagnostics_msg, health_of, status_msg
+from .tf_static import target_transforms
 
 
 class PublishingMixin:
@@ -37,6 +41,7 @@ class PublishingMixin:
     _pub_diagnostics: Any
     _tf: Any
     _tf_transforms: dict
+    _target_frame_names: frozenset = frozenset()   # the target frames on /tf_static now
     _loaded: Any
     _snapshots: Any
     _snapshot_lock: Any
@@ -93,13 +98,42 @@ class PublishingMixin:
         self.get_logger().error(f"calibration snapshot not written: {exc}")
 
     def _publish_tf(self) -> None:
-        """/tf_static: the registration ``tf_broadcast`` chooses of the latest model (call with
-        ``_pub_lock`` held); nothing of this node's child frame without one or with ``none``."""
-        chosen = self._tf_transforms.get(self._settings.tf_broadcast)
+        """/tf_static (call with ``_pub_lock`` held), in one message: the registration
+        ``tf_broadcast`` chooses of the latest model (nothing of this node's child frame without
+        one or with ``none``), and the named targets of ``target_frames`` at their
+        destinations (:meth:`_target_frames`)."""
+        s = self._settings
+        chosen = self._tf_transforms.get(s.tf_broadcast)
+        targets = self._target_frames()
+        published = self._target_frame_names
+        self._target_frame_names = frozenset(t.child_frame_id for t in targets)
+        remove = set(published) - self._target_frame_names
         if chosen is None:
-            self._tf.remove(self._settings.working_frame)
-        else:
-            self._tf.set(chosen)
+            remove.add(s.working_frame)
+        self._tf.replace(targets + ([chosen] if chosen is not None else []), remove)
+
+    def _target_frames(self) -> list[Any]:
+        """The ``/tf_static`` entries of ``target_frames``: each target's ``~/correct_target``
+        destination by the live model, or before one by a loaded calibration's answers; none
+        without either (or when the model refuses the targets: logged)."""
+        s = self._settings
+        frames, _ = parse_target_frames(s.target_frames)
+        loaded = self._loaded
+        model = self._state.model
+        if model is None and loaded is not None:
+            model = loaded.model
+        if not frames or model is None:
+            return []
+        xyz = np.array([f.point for f in frames], dtype=np.float64)
+        try:
+            destination = model.correct(xyz[:, :s.dimension]).destination
+        except ValueError as exc:
+            self.get_logger().error(f"target_frames not published: {exc}")
+            return []
+        if s.dimension == 2:            # z passes through, as for any target
+            destination = np.column_stack([destination, xyz[:, 2]])
+        return target_transforms([f.name for f in frames], destination, s.destination_frame,
+                                 self.get_clock().now().to_msg())
 
     def status(self, state: Optional[ModelState] = None) -> RegistrationStatus:
         """The ``RegistrationStatus`` now (what ``~/status`` publishes) of ``state`` (default:

@@ -65,9 +65,16 @@ class ServicesMixin:
     _snapshots: Any
 
     def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
-        """Answer from one snapshot of the model: (results, "", note) or ([], reason, "")."""
-        state, s = self._state, self._settings
-        model = state.model
+        """Answer from one snapshot of the model (or, until there is one, of a loaded
+        calibration file's answers): (results, "", note) or ([], reason, "")."""
+        state, s, loaded = self._state, self._settings, self._loaded
+        model: Any = state.model
+        label = ""
+        if model is None and loaded is not None:
+            if loaded.model is None:
+                return [], f"no model yet: {state.error}; {loaded.missing}", ""
+            model = loaded.model
+            label = model.decision.method + saved.FROM_FILE
         if model is None:
             return [], f"no model yet: {state.error}", ""
         try:
@@ -76,15 +83,17 @@ class ServicesMixin:
         except ValueError as exc:
             return [], str(exc), ""
         decision = model.decision
-        note = (f"{decision.method}: corrections {'applied' if decision.apply else 'not applied'}"
-                f" (decision {decision.mode.value}); {decision.reason}")
+        note = loaded.note() if label else (
+            f"{decision.method}: corrections {'applied' if decision.apply else 'not applied'}"
+            f" (decision {decision.mode.value}); {decision.reason}")
         mismatch = None if tc.inside_hull.any() else unit_mismatch(model.working, points,
                                                                      tc.inside_hull)
         if mismatch:                    # cheap: only when no target is inside the hull
             note += f"; warning: {mismatch}"
             self.get_logger().warning(mismatch, throttle_duration_sec=10.0)
         return conv.target_corrections_to_msgs(tc, z, decision.method, s.destination_frame,
-                                               [t.header.stamp for t in targets]), "", note
+                                               [t.header.stamp for t in targets],
+                                               label), "", note
 
     def _on_correct_target(self, request: CorrectTarget.Request,
                            response: CorrectTarget.Response) -> CorrectTarget.Response:

@@ -5,13 +5,17 @@ it on reset.
 tf2_ros_py's ``StaticTransformBroadcaster`` is not used: it keeps the first transform of a child
 frame and ignores later sends of the same child, so tf users would keep the first model. tf2
 listeners merge the latched messages of every ``/tf_static`` publisher, so this publisher holds
-only the node's own frames (its working frame as child). QoS as tf2's static broadcaster:
+only the node's own frames: its working frame, and the named targets of ``target_frames`` at
+their corrected destinations (:func:`target_transforms`). QoS as tf2's static broadcaster:
 reliable, TRANSIENT_LOCAL, depth 1 (a late joiner gets the newest message only).
 """
 
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Any, Iterable, Optional, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
 
 from geometry_msgs.msg import TransformStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -62,6 +66,16 @@ class StaticTf:
         if self._entries.pop(child_frame, None) is not None:
             self._publish()
 
+    def replace(self, transforms: Sequence[TransformStamped], remove: Iterable[str] = ()
+                ) -> None:
+        """Set the entries of ``transforms``, drop those of the child frames ``remove`` (not
+        among ``transforms``), and publish once."""
+        for child in remove:
+            self._entries.pop(child, None)
+        for transform in transforms:
+            self._entries[transform.child_frame_id] = transform
+        self._publish()
+
     def transforms(self) -> list[TransformStamped]:
         """The entries published now."""
         return list(self._entries.values())
@@ -69,3 +83,20 @@ class StaticTf:
     def _publish(self) -> None:
         if self._pub is not None:
             self._pub.publish(self._type(transforms=self.transforms()))
+
+
+def target_transforms(names: Sequence[str], destinations: ArrayLike, parent_frame: str,
+                      stamp: Any) -> list[TransformStamped]:
+    """The ``/tf_static`` entries of named targets: child frame ``names[k]`` of
+    ``parent_frame`` (destination_frame) at ``destinations[k]`` (K, 3) [m], with the parent's
+    axes (identity rotation: a target is a point)."""
+    out = []
+    for name, xyz in zip(names, np.asarray(destinations, dtype=np.float64).tolist(),
+                         strict=True):
+        msg = TransformStamped()
+        msg.header.frame_id, msg.header.stamp, msg.child_frame_id = parent_frame, stamp, name
+        t = msg.transform.translation
+        t.x, t.y, t.z = xyz
+        msg.transform.rotation.w = 1.0
+        out.append(msg)
+    return out

@@ -96,7 +96,10 @@ def test_config_file_lists_every_parameter_with_a_valid_value():
     assert set(values) == set(SPECS)
     settings = Settings.from_mapping(values)
     for name, value in values.items():
-        assert type(value) is type(SPECS[name].default), name   # ROS types must match
+        default = SPECS[name].default   # ROS types must match; a string array is a YAML list
+        assert type(value) is (list if isinstance(default, tuple) else type(default)), name
+        if isinstance(default, tuple):
+            assert all(isinstance(item, str) for item in value), name
     assert settings.state_dir
 
 

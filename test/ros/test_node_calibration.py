@@ -1,12 +1,14 @@
 """Saved calibrations through a node restart: the first node registers and saves
 (``state_dir/calibration.yaml``); a second node with an EMPTY state_dir and only
 ``calibration_file`` publishes the same transform on ~/transform and /tf_static before any
-measurement, says so in ~/status, and a live model replaces it once measurements arrive."""
+measurement, says so in ~/status, answers ~/correct_target(s) from the file's answers as the
+first node did, and a live model replaces it once measurements arrive."""
 
 import os
 
 import numpy as np
 import pytest
+import yaml
 
 pytest.importorskip("rclpy")
 TFMessage = pytest.importorskip("tf2_msgs.msg").TFMessage
@@ -20,7 +22,11 @@ from rbc_registration.io.calibration import read_calibration  # noqa: E402
 from rbc_registration.ros.conversions import transform_to_matrix  # noqa: E402
 from rbc_registration.ros.node import RegistrationNode  # noqa: E402
 from rbc_registration.ros.tf_static import STATIC_QOS, TOPIC  # noqa: E402
+from rbc_registration_interfaces.srv import CorrectTargets  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import qos_profile_rosout_default  # noqa: E402
+from ros_helpers import point_xyz, target_msg, wait_for  # noqa: E402
 from test_node import NodeTestBase  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -50,6 +56,9 @@ class TestSavedCalibration(NodeTestBase):
                                                                          "corrected")
         assert cal.decision.apply and cal.n_fiducials == len(model.ids)
         before = transform_to_matrix(self.transform(first))
+        live_answers = self.srv(first, CorrectTargets, "correct_targets", CorrectTargets.Request(
+            targets=[target_msg(t) for t in self.cell["targets"]]))
+        assert live_answers.success, live_answers.message
         self.ros.remove(first)  # the restart: the first node is gone
         self.nodes.remove(first)
 
@@ -62,7 +71,28 @@ class TestSavedCalibration(NodeTestBase):
         np.testing.assert_allclose(transform_to_matrix(entry), before, atol=1e-12)
         status = self.latest(second, RegistrationStatus, f"/{second.get_name()}/status")
         assert f"calibration from {path}" in status.message and not status.model_valid
-        assert not self.correct(second, self.cell["targets"][0]).success  # no model: no ε(T)
+        # the file's answers: the live node's, to 1e-9 m, saying they come from the file
+        from_file = self.srv(second, CorrectTargets, "correct_targets", CorrectTargets.Request(
+            targets=[target_msg(t) for t in self.cell["targets"]]))
+        assert from_file.success, from_file.message
+        assert f"from {path}" in from_file.message
+        method = model.decision.method
+        assert method != "uncorrected"
+        for live_r, file_r in zip(live_answers.results, from_file.results, strict=True):
+            assert live_r.method == method and file_r.method == f"{method} (calibration file)"
+            assert file_r.correction_applied == live_r.correction_applied
+            assert file_r.inside_hull == live_r.inside_hull
+            for field in ("destination", "corrected", "uncorrected"):
+                np.testing.assert_allclose(point_xyz(getattr(file_r, field).point),
+                                           point_xyz(getattr(live_r, field).point), rtol=0,
+                                           atol=1e-9)
+            assert file_r.expected_tre == pytest.approx(live_r.expected_tre, rel=1e-9)
+            assert file_r.tre_bound == pytest.approx(live_r.tre_bound, rel=1e-9)
+        single = self.correct(second, self.cell["targets"][0])
+        assert single.success and single.method == f"{method} (calibration file)"
+        np.testing.assert_allclose(point_xyz(single.destination.point),
+                                   point_xyz(live_answers.results[0].destination.point),
+                                   rtol=0, atol=1e-9)
         # nothing written but the (empty) journal and the state_dir lock (issue 11)
         assert [n for n in os.listdir(second_dir) if n not in ("journal.jsonl", LOCK_NAME)] == []
 
@@ -117,8 +147,68 @@ class TestSavedCalibration(NodeTestBase):
                 Parameter("state_dir", value=""),
                 Parameter("calibration_file", value=str(tmp_path / "bad.yaml"))])
 
+    def test_a_file_without_answers_publishes_tf_and_says_it_answers_no_targets(self, tmp_path):
+        """A format version 2 file (no ``answers``, as files written by an older package) is
+        published, and ~/correct_target says the file answers no targets."""
+        first = self.make_node(state_dir=str(tmp_path / "a"))
+        self.stream(first)
+        self.recompute(first)
+        assert self.srv(first, Trigger, "save").success
+        doc = yaml.safe_load((tmp_path / "a" / "calibration.yaml").read_text())
+        del doc["answers"]
+        doc["format_version"] = 2
+        path = tmp_path / "v2.yaml"
+        path.write_text(yaml.safe_dump(doc, sort_keys=False))
+        second = self.make_node(state_dir="", calibration_file=str(path))
+        (entry,) = self.tf_entry(second)
+        np.testing.assert_allclose(transform_to_matrix(entry),
+                                   read_calibration(str(path)).transform_matrix(), atol=1e-12)
+        r = self.correct(second, self.cell["targets"][0])
+        assert not r.success
+        assert f"{path} holds no answers" in r.message and "answers no targets" in r.message
+
     def test_save_without_a_model_says_why(self, tmp_path):
         node = self.make_node(state_dir=str(tmp_path))
         r = self.srv(node, Trigger, "save")
         assert not r.success and "no model to save as a calibration yet" in r.message
         assert not (tmp_path / "calibration.yaml").exists()
+
+
+class TestRestartWarnings(NodeTestBase):
+    """A restart on an old state_dir warns only about parameters that change the model built
+    from the journal (``Spec.changes_model``): not about ``calibration_file`` or ``point_mode``,
+    once about another ``sigma``."""
+
+    def start_logs(self, **params):
+        """Start a node and return its WARN lines up to its start-up line, then stop it."""
+        logs = []
+        sub = self.ros.client.create_subscription(Log, "/rosout", logs.append,
+                                                  qos_profile_rosout_default)
+        node = self.make_node(**params)
+        name = node.get_name()
+        wait_for(lambda: any(m.name == name and m.msg.startswith("registering ")
+                             for m in logs), what="the start-up line")
+        self.ros.client.destroy_subscription(sub)
+        self.ros.remove(node)
+        self.nodes.remove(node)
+        return [m.msg for m in logs if m.name == name and m.level == Log.WARN]
+
+    def test_only_parameters_that_change_the_model_are_named(self, tmp_path):
+        state_dir = tmp_path / "cell"
+        first = self.make_node(state_dir=str(state_dir))
+        self.stream(first)
+        self.recompute(first)
+        assert self.srv(first, Trigger, "save").success
+        wait_for(lambda: (state_dir / "calibration.json").exists(), what="the snapshot")
+        self.ros.remove(first)
+        self.nodes.remove(first)
+
+        warnings = self.start_logs(state_dir=str(state_dir), point_mode="sample",
+                                   calibration_file=str(state_dir / "calibration.yaml"))
+        assert not [w for w in warnings if "built with other parameters" in w], warnings
+
+        warnings = [w for w in self.start_logs(state_dir=str(state_dir), sigma=1e-4)
+                    if "built with other parameters" in w]
+        assert len(warnings) == 1, warnings
+        assert "sigma 0.0 (now 0.0001)" in warnings[0]
+        assert "point_mode" not in warnings[0] and "calibration_file" not in warnings[0]

@@ -19,7 +19,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from rbc_registration.ros.conversions import transform_to_matrix  # noqa: E402
 from rbc_registration.ros.tf_static import STATIC_QOS, TOPIC  # noqa: E402
-from ros_helpers import wait_for  # noqa: E402
+from ros_helpers import point_xyz, wait_for  # noqa: E402
 from test_node import NodeTestBase  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -199,3 +199,88 @@ class TestResetDuringARebuild(NodeTestBase):
             saved = json.loads(snapshot.read_text())
             assert not saved["model_valid"] and saved["n_measurements"] == 0
             assert saved["fiducial_ids"] == []
+
+
+class TestTargetFrames(NodeTestBase):
+    """target_frames: each named target is a child frame of destination_frame on /tf_static at
+    its ~/correct_target destination, replaced with every model, changed with the parameter,
+    removed on reset, and published from a loaded calibration's answers before a live model."""
+
+    def late_tf(self, node):
+        return self.latest(node, TFMessage, TOPIC, qos=STATIC_QOS)
+
+    def frames(self, msg):
+        return {t.child_frame_id: t for t in msg.transforms}
+
+    def entries(self, names):
+        return [f"{name}:{x!r},{y!r},{z!r}"
+                for name, (x, y, z) in zip(names, self.cell["targets"].tolist())]
+
+    def assert_at_destinations(self, node, msg, names, atol=1e-12):
+        frames = self.frames(msg)
+        for name, target in zip(names, self.cell["targets"]):
+            r = self.correct(node, target)
+            assert r.success, r.message
+            t = frames[name]
+            assert t.header.frame_id == "world"
+            m = transform_to_matrix(t)
+            np.testing.assert_allclose(m[:3, :3], np.eye(3), atol=0)
+            np.testing.assert_allclose(m[:3, 3], point_xyz(r.destination.point), rtol=0,
+                                       atol=atol)
+        return frames
+
+    def test_targets_follow_each_model_the_parameter_and_a_reset(self):
+        names = ["peg_a", "peg_b"]
+        node = self.make_node(target_frames=self.entries(names))
+        self.stream(node, range(30))
+        first = self.recompute(node).model
+        msg = self.late_tf(node)
+        assert set(self.frames(msg)) == {"tracker", *names}
+        before = self.assert_at_destinations(node, msg, names)
+        assert first.decision.apply   # the destination carries the correction
+
+        self.stream(node, range(30, self.n))
+        self.recompute(node)
+        msg = self.late_tf(node)
+        after = self.assert_at_destinations(node, msg, names)
+        moved = [np.abs(transform_to_matrix(after[n]) - transform_to_matrix(before[n])).max()
+                 for n in names]
+        assert min(moved) > 1e-9   # replaced with the new model
+
+        result = node.set_parameters([Parameter("target_frames", Parameter.Type.STRING_ARRAY,
+                                                self.entries(["peg_c"]))])
+        assert result[0].successful, result[0].reason
+        msg = self.late_tf(node)
+        assert set(self.frames(msg)) == {"tracker", "peg_c"}
+        self.assert_at_destinations(node, msg, ["peg_c"])
+        bad = node.set_parameters([Parameter("target_frames", Parameter.Type.STRING_ARRAY,
+                                             ["peg_d:1,2"])])
+        assert not bad[0].successful and "must be NAME:X,Y,Z" in bad[0].reason
+
+        assert self.srv(node, Trigger, "reset").success
+        wait_for(lambda: not self.frames(self.late_tf(node)), what="an empty /tf_static")
+
+    def test_a_loaded_calibration_publishes_the_targets_before_a_live_model(self, tmp_path):
+        names = ["peg_a", "peg_b", "peg_c"]
+        first = self.make_node(state_dir=str(tmp_path / "a"))
+        self.stream(first)
+        self.recompute(first)
+        assert self.srv(first, Trigger, "save").success
+        live = [point_xyz(self.correct(first, t).destination.point)
+                for t in self.cell["targets"][:3]]
+        self.ros.remove(first)
+        self.nodes.remove(first)
+
+        second = self.make_node(state_dir="", target_frames=self.entries(names),
+                                calibration_file=str(tmp_path / "a" / "calibration.yaml"))
+        assert second.status().n_measurements == 0
+        frames = self.frames(self.late_tf(second))
+        assert set(frames) == {"tracker", *names}
+        for name, xyz in zip(names, live):
+            np.testing.assert_allclose(transform_to_matrix(frames[name])[:3, 3], xyz, rtol=0,
+                                       atol=1e-9)
+
+    def test_a_target_frame_named_as_a_node_frame_is_refused(self):
+        with pytest.raises(ValueError, match="target_frames\\[0\\]: the name 'world' is "
+                                             "destination_frame"):
+            self.make_node(target_frames=["world:0,0,0"])
