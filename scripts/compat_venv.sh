@@ -49,7 +49,7 @@ rm -f "$STAMP"
 say "installing ${PACKAGES[*]} pinned by $(basename "$PINS")"
 "$VPY" -m pip install "${PACKAGES[@]}" -c "$PINS" >"$LOG" 2>&1 \
   || { tail -n 30 "$LOG" >&2; die "pip install failed (log: $LOG)"; }
-# Build from a copy: an in-tree build/ could carry modules that no longer exist.
+# Build from a copy: an in-tree build/ could carry modules the source does not have.
 SRC="$(mktemp -d)"
 trap 'rm -rf "$SRC"' EXIT
 for f in "${FILES[@]}"; do [ -f "$f" ] && install -D -m 644 "$f" "$SRC/$f"; done

@@ -110,8 +110,8 @@ def held_back_by_decision(model: RbcModel) -> Optional[str]:
 
 #: The decisive candidate (:func:`decisive_candidate`) is suggested first only when its
 #: correction is at least this many of its standard deviations: below, it is noise and tests
-#: nothing, and the plan is greedy from its first suggestion (a review: 0.00065 sigma displaced
-#: the best-gain candidate).
+#: nothing, and the plan is greedy from its first suggestion (without the floor a correction of
+#: 0.00065 sigma would displace the best-gain candidate).
 MIN_DECISIVE_Z = 1.0
 
 

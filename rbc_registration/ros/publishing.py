@@ -83,7 +83,7 @@ class PublishingMixin:
                 self._publish_tf()
             elif self._loaded is None and self._tf_transforms:
                 # the live model became invalid (e.g. fiducials disabled below min_fiducials):
-                # /tf_static no longer holds a registration the node refuses to serve
+                # /tf_static must not hold a registration the node refuses to serve
                 self._tf_transforms = {}
                 self._publish_tf()
             self._pub_markers.publish(markers)
