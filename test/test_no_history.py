@@ -85,7 +85,8 @@ def test_the_patterns_find_history_and_pass_plain_words():
     history = ["A review found the bound too small.", "Since stop 32 the node batches.",
                "measured in this stop", "The reviewer's cells", "previously 2.1 ms",
                "it used to fail on NaN", "The node no longer logs it.", "This was fixed.",
-               "a regression of issue 9", "a regression since the split", "see commit 7e53f70", "(9b81d46 commit)",
+               "a regression of issue 9", "a regression since the split",
+               "see commit 7e53f70", "(9b81d46 commit)",
                "as an earlier session measured", "before stop 30"]
     plain = ["before the rebuild", "the seed used to draw the cell", "is used to scale",
              "no longer than 80 lines", "stop the spin thread", "stops at 10 fiducials",
