@@ -8,6 +8,7 @@ import pytest
 import scipy.linalg
 
 from rbc_registration.core import ModelConfig, build_model
+from rbc_registration.core.answers import TargetCorrections
 from rbc_registration.core.constants import UNCORRECTED
 from rbc_registration.core.interpolation import HullTest
 from rbc_registration.core.kriging import KrigingInterpolator
@@ -180,3 +181,11 @@ def test_a_thin_cell_the_registration_accepts_is_answered():
                     ModelConfig(dimension=3, interpolation="kriging"))
     a = m.answer(x[:2] + 1.0)
     assert np.all(np.isfinite(a.destination)) and np.all(a.tre_bound > 0)
+
+
+def test_a_model_answers_with_the_types_of_core_answers():
+    model, targets = case(3, "paper", "cv", 3e-3)
+    answer = model.correct(targets)
+    assert isinstance(answer, TargetCorrections)
+    assert model.decision.method == "kriging" and answer.destination.shape == targets.shape
+    assert np.all(answer.tre_bound >= answer.expected_tre)
