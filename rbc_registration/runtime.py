@@ -1,8 +1,8 @@
 """Process-wide defaults of the console scripts, applied before numpy is first imported.
 
 One BLAS thread: the node calls BLAS from two threads (services and the recompute thread), and
-OpenBLAS's own worker threads spin-wait; on a busy machine they stalled the whole node for
-seconds (benchmarks/RESULTS.md, "Soak"). One thread also makes the offline tools compute
+OpenBLAS's own worker threads spin-wait; on a busy machine they stall the whole node for
+seconds. One thread also makes the offline tools compute
 exactly what the node computes (kriging's optimiser follows the summation order), so
 ``evaluate`` on a bag agrees with the live node to the last bit.
 
@@ -17,8 +17,7 @@ The objects of a long-running process's start (modules, classes, functions, the 
 and replayed journal: about 86,000 in ``registration_node``) live as long as the process: after
 start-up :func:`freeze_startup_objects` moves them out of the cyclic garbage collector's reach,
 so a full (gen-2) collection, which holds the GIL and so delays every callback, scans only what
-came later (4-13 ms instead of 40-58 ms in the node; benchmarks/RESULTS.md, "A paced client
-during the rebuild").
+came later.
 """
 
 from __future__ import annotations

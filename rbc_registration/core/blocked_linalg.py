@@ -3,8 +3,7 @@
 A kriging rebuild runs beside the node's answers (its executor thread): scipy's LAPACK wrappers
 hold the GIL for the whole call (``dpotri`` 0.7 s at J = 4,000, ``cho_solve`` ~0.1 s at
 J = 5,000), numpy's matmul does not. Here only the diagonal blocks of :data:`BLOCK` rows go
-through LAPACK; everything else is matmul (benchmarks/RESULTS.md, "Kriging at J = 5,000 in the
-node").
+through LAPACK; everything else is matmul.
 """
 
 from __future__ import annotations

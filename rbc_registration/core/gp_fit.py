@@ -50,8 +50,8 @@ GRID_NOISE_RATIOS = tuple(10.0 ** k for k in range(-6, 3))
 #: noise, l ~ half the spacing": kriging passes through every fiducial's noise, and leave-one-out
 #: cannot see it (a held-out fiducial is a spacing from the others, where such a field has faded
 #: to its mean), so the decision applied it confidently while targets near a fiducial got that
-#: fiducial's noise (1.21-1.40x the uncorrected TRE on 2D grids of 36, bias 0.3 x the noise; an
-#: independent review, benchmarks/RESULTS.md "Decision"). With sigma given the noise is known and
+#: fiducial's noise (1.21-1.40x the uncorrected TRE on 2D grids of 36, bias 0.3 x the noise,
+#: without this floor). With sigma given the noise is known and
 #: the bound is spacing / 4.
 FITTED_NOISE_MIN_LENGTH = 1.0
 #: Relative diagonal jitter (of s^2) that keeps the covariance numerically positive definite.

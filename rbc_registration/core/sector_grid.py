@@ -43,8 +43,7 @@ from .sectors import (AMBIGUOUS, CHUNK, SECTOR_CANDIDATES, SECTORS, EmptySectors
                       on_fiducial_tolerance, staged_sector_weights)
 
 #: A cell is prepared when this many targets have fallen in it, in one batch or across batches:
-#: preparing one costs about as much as 10 targets on the staged path (benchmarks/RESULTS.md,
-#: "Target corrections, 2D, new targets in every call").
+#: preparing one costs about as much as 10 targets on the staged path.
 PREPARE_AFTER = 8
 #: Batches smaller than this take the general path (the grid pays off from a few dozen targets).
 GRID_MIN_TARGETS = 32

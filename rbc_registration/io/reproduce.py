@@ -57,8 +57,8 @@ def findings(results: dict[str, CellResult]) -> list[dict[str, Any]]:
         add("RA: fraction of targets improved (paper)", f, 0.75, f >= 0.75,
             "RA-like improved for at least 75% of targets (Fig. 5b)")
     # A only: on RA's single measurements kriging and the paper's interpolation are within about
-    # 10 % of each other either way, seed by seed (benchmarks/RESULTS.md, Reproduce), so no
-    # order is claimed there; the decision chooses per cell.
+    # 10 % of each other either way, seed by seed, so no order is claimed there; the decision
+    # chooses per cell.
     if "A" in results:
         pc = results["A"].results["paper"].averaged.summary()["tre_c_median"]
         kc = results["A"].results["kriging"].averaged.summary()["tre_c_median"]

@@ -2,14 +2,13 @@
 with the executor answering ``~/correct_target``. No rclpy.
 
 In one process, a rebuild thread and the executor thread take turns holding the GIL: with a
-client calling back to back, a kriging rebuild at J = 5,000 fiducials took about twice its
-in-process time (13-14 s against 6.5-7 s on this project's 2-core machine; benchmarks/RESULTS.md,
-"The rebuild in its own process"). A build in a child process has its own interpreter and GIL.
+client calling back to back, a kriging rebuild at J = 5,000 fiducials takes about twice its
+in-process time. A build in a child process has its own interpreter and GIL.
 
 :class:`ProcessBuilder` is called like :func:`~.state.build_state`. Where a build runs is the
 ``rebuild_worker`` setting:
 
-- ``thread`` -- in the calling thread (the node's recompute thread), as before;
+- ``thread`` -- in the calling thread (the node's recompute thread);
 - ``process`` -- in the child process, whatever the number of fiducials;
 - ``auto`` (default) -- in the child from :data:`~.settings.PROCESS_MIN_FIDUCIALS` enabled
   fiducials on (where a kriging build takes a second or more), in the thread below (a child's

@@ -3,8 +3,8 @@ executor wake-up.
 
 rclpy's executors take one message per subscription per wake-up, and every wake-up rebuilds the
 wait set over all of the node's entities in Python (about 20 here: 3 subscriptions, 15 services,
-a timer): in a burst of ``FiducialPair`` messages that rebuild, not the node's callback, was most
-of the time per message (benchmarks/RESULTS.md, "Ingestion: where the time went"). So after the
+a timer): in a burst of ``FiducialPair`` messages that rebuild, not the node's callback, is most
+of the time per message. So after the
 message the executor hands over, the callback takes up to ``input_batch - 1`` further messages
 already waiting on the same subscription, the way the executor takes them
 (``take_message(msg_type, raw)``), and handles each exactly as if the executor had handed it
