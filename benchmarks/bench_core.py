@@ -53,8 +53,7 @@ from rbc_registration.core.restoration import restore_rigid_body  # noqa: E402
 
 def turned(y: np.ndarray) -> np.ndarray:
     """``y`` with its axes reversed and the new last one negated: a rotation. Reversing alone
-    is a reflection, which ``build_model`` refuses as a mirrored frame; the cells here were
-    built that way until it did (timings before then are of mirrored cells)."""
+    is a reflection, which ``build_model`` refuses as a mirrored frame."""
     x = y[:, ::-1].copy()
     x[:, -1] *= -1.0
     return x
