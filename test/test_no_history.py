@@ -21,6 +21,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 PATTERNS = {
     "a review": r"\ba review\b",
     "review found": r"\breviews? found\b",
+    "found by a review": r"\bfound (?:by|in) (?:an? |the |two |three )?reviews?\b",
+    "independent review": r"\bindependent review\b",
     "reviewer": r"\breviewers?\b",
     "stop N": r"\bstop \d+\b",
     "this stop": r"\bthis stop\b",
@@ -87,7 +89,8 @@ def test_the_patterns_find_history_and_pass_plain_words():
                "it used to fail on NaN", "The node no longer logs it.", "This was fixed.",
                "a regression of issue 9", "a regression since the split",
                "see commit 7e53f70", "(9b81d46 commit)",
-               "as an earlier session measured", "before stop 30"]
+               "as an earlier session measured", "before stop 30",
+               "(found in review, a bag)", "an independent review of the cells"]
     plain = ["before the rebuild", "the seed used to draw the cell", "is used to scale",
              "no longer than 80 lines", "stop the spin thread", "stops at 10 fiducials",
              "the decision reviews nothing", "code 9b81d46, 2 cores",
