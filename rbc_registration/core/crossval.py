@@ -260,22 +260,44 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
     if scheme.kind == FoldKind.LEAVE_ONE_OUT:   # units held out together: fewer folds than J
         scheme = scheme._replace(n_folds=len(groups))
     held_out = _held_out(kriging, groups)
-    scale = np.full(j, np.nan) if kriging is not None else None
     errors = {c: np.full(j, np.nan) for c in candidates if c not in unavailable}
-    corrected = [c for c in errors if c in INTERPOLATIONS]
     fast_u = None
     if (UNCORRECTED in errors and uncorrected_subset is None
             and scheme.kind == FoldKind.LEAVE_ONE_OUT and len(groups) == j):  # one per fold
         fast_u = loo_rigid_errors(x, y)
         if fast_u is not None:
             errors[UNCORRECTED][:] = fast_u
-    kriging_folds = []                      # (fold, eps, R_c): held_out may still be running
+    kriging_folds, reached = _fold_errors(x, y, groups, errors, unavailable, fast_u is None,
+                                          restoration, steps, uncorrected_subset,
+                                          corrected_subset)
+    scale = None if held_out is None else _kriging_errors(x, y, groups[:reached], held_out,
+                                                          kriging_folds, errors, unavailable)
+    for c in unavailable:
+        errors.pop(c, None)
+    for e in errors.values():
+        e.setflags(write=False)
+    if scale is not None:
+        scale.setflags(write=False)
+    return CrossValidation(scheme, errors, scale, unavailable, rounding(x, y), units)
+
+
+def _fold_errors(x: NDArray[np.float64], y: NDArray[np.float64], groups: list,
+                 errors: dict[str, NDArray[np.float64]], unavailable: dict[str, str],
+                 fit_uncorrected: bool, restoration: str, steps: int,
+                 uncorrected_subset: Optional[Sequence[int]],
+                 corrected_subset: Optional[Sequence[int]]) -> tuple[list, int]:
+    """Each fold's held-out errors of ``uncorrected`` (when ``fit_uncorrected``) and ``paper``
+    into ``errors``; a candidate that fails goes to ``unavailable``. Returns the kriging folds
+    still to evaluate, (fold, eps of the kept fiducials, R_c), and the folds reached."""
+    j = len(x)
+    corrected = [c for c in errors if c in INTERPOLATIONS]
+    kriging_folds = []
     reached = 0
     for f, held in enumerate(groups):
         reached = f + 1
         kept = np.setdiff1d(np.arange(j), held)
         xk, yk, xs, ys = x[kept], y[kept], x[held], y[held]
-        if UNCORRECTED in errors and fast_u is None:
+        if UNCORRECTED in errors and fit_uncorrected:
             try:
                 reg = _fit(xk, yk, kept, uncorrected_subset)
             except ValueError as exc:          # the kept fiducials cannot fix a registration
@@ -301,30 +323,30 @@ def cross_validate(working: ArrayLike, destination: ArrayLike,
                 corrected.remove("paper")
                 continue
             errors["paper"][held] = np.linalg.norm(reg_c.apply(xs - eps_s) - ys, axis=1)
-    predictors = None
-    if held_out is not None:
+    return kriging_folds, reached
+
+
+def _kriging_errors(x: NDArray[np.float64], y: NDArray[np.float64], groups: list,
+                    held_out: Callable[[], list], kriging_folds: list,
+                    errors: dict[str, NDArray[np.float64]],
+                    unavailable: dict[str, str]) -> Optional[NDArray[np.float64]]:
+    """The kriging folds' held-out errors into ``errors`` from the held-out predictors, and the
+    kriging scale per fiducial of the folds in ``groups`` (NaN elsewhere); None when the
+    kriging model could not be built (its reason in ``unavailable``)."""
+    try:
+        predictors = held_out()
+    except ValueError as exc:          # a kriging model built in a thread could not be
+        unavailable["kriging"] = str(exc)
+        return None
+    scale = np.full(len(x), np.nan)
+    for f, held in enumerate(groups):
+        scale[held] = predictors[f][1]
+    for f, eps, reg_c in kriging_folds:
+        held = groups[f]
         try:
-            predictors = held_out()
-        except ValueError as exc:          # a kriging model built in a thread could not be
-            unavailable["kriging"] = str(exc)
-            scale = None
-            kriging_folds = []
-    if predictors is not None:
-        for f in range(reached):
-            scale[groups[f]] = predictors[f][1]
-        for f, eps, reg_c in kriging_folds:
-            held = groups[f]
-            try:
-                eps_s = predictors[f][0] @ eps
-            except (ValueError, np.linalg.LinAlgError) as exc:
-                unavailable["kriging"] = f"fold {f + 1}: {exc}"
-                break
-            errors["kriging"][held] = np.linalg.norm(reg_c.apply(x[held] - eps_s) - y[held],
-                                                     axis=1)
-    for c in unavailable:
-        errors.pop(c, None)
-    for e in errors.values():
-        e.setflags(write=False)
-    if scale is not None:
-        scale.setflags(write=False)
-    return CrossValidation(scheme, errors, scale, unavailable, rounding(x, y), units)
+            eps_s = predictors[f][0] @ eps
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            unavailable["kriging"] = f"fold {f + 1}: {exc}"
+            break
+        errors["kriging"][held] = np.linalg.norm(reg_c.apply(x[held] - eps_s) - y[held], axis=1)
+    return scale
