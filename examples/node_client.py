@@ -4,6 +4,10 @@ FIDUCIALS.csv, wait for the model they make, correct the targets of a TARGETS.cs
 
     python examples/node_client.py examples/cell3d/fiducials.csv \\
         --targets examples/cell3d/targets.csv --save
+    python examples/node_client.py --targets examples/cell3d/targets.csv
+
+Without FIDUCIALS.csv nothing is published: the targets are corrected by what the node holds
+(a live model, or a calibration file it loaded).
 
 The CSV files are in ``--unit`` (default mm); the node works in metres (REP 103), so points are
 converted on the way in and answers on the way out. The frames are the node's defaults
@@ -62,7 +66,8 @@ def pair_messages(path: str, scale: float, dim: int | None = None) -> list[Any]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("fiducials", help="FIDUCIALS.csv: the pairs to publish")
+    parser.add_argument("fiducials", nargs="?",
+                        help="FIDUCIALS.csv: the pairs to publish (default: none)")
     parser.add_argument("--targets", help="TARGETS.csv: the targets to correct")
     parser.add_argument("--unit", default="mm", help="length unit of the files (default mm)")
     parser.add_argument("--node", default="/registration_node", help="the node's name")
@@ -77,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_srvs.srv import Trigger
 
-    pairs = pair_messages(args.fiducials, scale)
+    pairs = pair_messages(args.fiducials, scale) if args.fiducials else []
     rclpy.init()
     node = rclpy.create_node("node_client_example")
     try:
@@ -89,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
                                           QoSProfile(depth=len(pairs),
                                                      reliability=ReliabilityPolicy.RELIABLE))
         deadline = time.monotonic() + WAIT_S
-        while publisher.get_subscription_count() == 0 or not status:
+        while (pairs and publisher.get_subscription_count() == 0) or not status:
             if time.monotonic() > deadline:
                 raise RuntimeError(f"no node {args.node} (its ~/status and ~/fiducial_pairs)")
             rclpy.spin_once(node, timeout_sec=0.1)
@@ -97,16 +102,20 @@ def main(argv: list[str] | None = None) -> int:
         for msg in pairs:
             msg.header.stamp = node.get_clock().now().to_msg()
             publisher.publish(msg)
-        print(f"published {len(pairs)} fiducial pairs to {args.node}/fiducial_pairs")
-        while not (status[-1].n_measurements + status[-1].n_rejected >= before + len(pairs)
-                   and status[-1].n_pending == 0 and status[-1].model_valid):
+        if pairs:
+            print(f"published {len(pairs)} fiducial pairs to {args.node}/fiducial_pairs")
+        while pairs and not (status[-1].n_measurements + status[-1].n_rejected
+                             >= before + len(pairs)
+                             and status[-1].n_pending == 0 and status[-1].model_valid):
             if time.monotonic() > deadline:
                 raise RuntimeError("the node built no model of the pairs within "
                                    f"{WAIT_S} s (~/status: {status[-1].message!r})")
             rclpy.spin_once(node, timeout_sec=0.1)
         s = status[-1]
-        print(f"model: {s.n_fiducials} fiducials, decision {s.decision_mode} -> "
-              f"{s.decision_method}, expected TRE {s.expected_tre_median / scale:.4g} {args.unit}")
+        if s.model_valid:
+            print(f"model: {s.n_fiducials} fiducials, decision {s.decision_mode} -> "
+                  f"{s.decision_method}, expected TRE {s.expected_tre_median / scale:.4g} "
+                  f"{args.unit}")
 
         if args.targets:
             targets = read_targets(args.targets, s.dimension)
