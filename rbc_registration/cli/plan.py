@@ -2,7 +2,7 @@
 
 Builds the model of FIDUCIALS.csv as ``register`` does (same model options), then ranks the
 candidate locations of CANDIDATES.csv by the expected reduction of the median target error
-(:func:`rbc_registration.core.model_planner.plan_from_model`; README, "Planning the
+(:func:`rbc_registration.core.model_planner.plan_from_model`; docs/METHOD.md, "Planning the
 measurements"), over the targets of TARGETS.csv or, without them, over the work volume.
 """
 

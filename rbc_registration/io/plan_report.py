@@ -1,5 +1,5 @@
 """The report of a measurement plan (``rbc-registration plan``): a JSON-ready dict (keys
-documented in README.md, "`plan`: which fiducial to measure next") and its text.
+documented in docs/CLI.md, "`plan`") and its text.
 
 Lengths are in the unit of the files (the label ``unit``); the plan is
 :class:`~rbc_registration.core.planner.MeasurementPlan`.
@@ -17,7 +17,7 @@ from .escape import terminal
 
 def plan_report(plan: MeasurementPlan, candidate_ids: Sequence[str], error_model:
                 ExpectedErrorModel, config: PlanConfig, unit: str = "mm") -> dict[str, Any]:
-    """The report dict of ``plan`` (README, "`plan`").
+    """The report dict of ``plan`` (docs/CLI.md, "`plan`").
 
     :param candidate_ids: (C,) the candidates' ids, in the order the plan indexes them. With
         groups (``plan.unit_labels``) each suggestion is a group: ``id`` and ``index`` are its

@@ -1,4 +1,4 @@
-"""The report of a registration: a JSON-ready dict (keys documented in README.md) and its text."""
+"""The report of a registration: a JSON-ready dict (keys documented in docs/CLI.md) and its text."""
 
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def model_report(model: RbcModel, target_ids: Sequence[str] = (),
                  targets_working: Optional[ArrayLike] = None,
                  targets_destination: Optional[ArrayLike] = None,
                  loo: Optional[TargetErrors] = None, unit: str = "mm") -> dict[str, Any]:
-    """Build the report dict of ``register`` / ``evaluate`` (README "JSON report")."""
+    """Build the report dict of ``register`` / ``evaluate`` (docs/CLI.md, "JSON report")."""
     cfg = model.config
     report: dict[str, Any] = {
         "unit": unit,
