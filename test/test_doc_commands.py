@@ -481,3 +481,93 @@ def test_the_commands_of_the_doc_run(doc, tmp_path):
                 raise AssertionError(f"{doc.relative_to(ROOT)}:{number}: {error}") from None
     finally:
         session.close()
+
+
+# --- docs/CLI.md against the parser ----------------------------------------------------------
+
+def _cli_sections() -> dict[str, str]:
+    """docs/CLI.md's text per ``## `subcommand` `` section."""
+    sections: dict[str, str] = {}
+    name = None
+    for line in (ROOT / "docs" / "CLI.md").read_text(encoding="utf-8").splitlines():
+        heading = re.match(r"^## `([a-z-]+)`\s*$", line)
+        if heading:
+            name = heading.group(1)
+            sections[name] = ""
+        elif line.startswith("## "):
+            name = None
+        elif name:
+            sections[name] += line + "\n"
+    return sections
+
+
+def _subcommand_options() -> dict[str, set[str]]:
+    from rbc_registration.cli import build_parser
+
+    parser = build_parser()
+    subparsers = next(a for a in parser._actions if a.choices and isinstance(a.choices, dict))
+    return {name: {o for action in sub._actions for o in action.option_strings
+                   if o.startswith("--") and o != "--help"}
+            for name, sub in subparsers.choices.items()}
+
+
+@pytest.mark.parametrize("name", ["register", "plan", "export", "reproduce"])
+def test_cli_md_names_every_option_of_the_subcommand_and_no_other(name):
+    """Every option of ``--help`` is named in the subcommand's section; every option of its
+    options table is one the subcommand has."""
+    text = _cli_sections()[name]
+    options = _subcommand_options()[name]
+    named = set(re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", text))
+    missing = sorted(options - named)
+    assert not missing, f"docs/CLI.md, `{name}`, does not name {missing}"
+    table = "\n".join(line for line in text.splitlines() if line.startswith("| `--"))
+    named = set(re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", table))
+    unknown = sorted(named - options)
+    assert not unknown, f"docs/CLI.md, `{name}`, names options {name} does not have: {unknown}"
+
+
+def _table_keys(text: str, header: str) -> set[str]:
+    """The keys of the first column of the table under the line ``header`` in ``text``."""
+    lines = text.split(header, 1)[1].splitlines()
+    keys: set[str] = set()
+    for line in lines[1:]:
+        if not line.strip():
+            if keys:
+                break
+            continue
+        if line.startswith("| ") and not line.startswith("| key") and "---" not in line:
+            keys |= set(re.findall(r"`([A-Za-z_0-9]+)`", line.split("|")[1]))
+    return keys
+
+
+def _report(tmp_path: pathlib.Path, *argv: str) -> dict:
+    import contextlib
+    import io
+    import json
+
+    from rbc_registration.cli import main
+
+    out = tmp_path / "report.json"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main([*argv, "--json", str(out)]) == 0
+    return json.loads(out.read_text(encoding="utf-8"))
+
+
+def test_cli_md_json_tables_name_the_keys_the_reports_have(tmp_path):
+    cell = ROOT / "examples" / "cell3d"
+    sections = _cli_sections()
+    report = _report(tmp_path, "register", str(cell / "fiducials.csv"), "--targets",
+                     str(cell / "targets.csv"), "--loo")
+    documented = _table_keys(sections["register"], "### JSON report")
+    evaluate_only = {"working_frame", "destination_frame"}
+    assert set(report) <= documented, f"undocumented: {sorted(set(report) - documented)}"
+    assert documented - evaluate_only <= set(report), sorted(documented - set(report))
+    for key, header in (("decision", "`decision`:"), ("targets", "`targets[]`:")):
+        keys = set(report[key] if key == "decision" else report[key][0])
+        named = _table_keys(sections["register"], header)
+        assert keys == named, f"{key}: undocumented {keys - named}, absent {named - keys}"
+
+    plan = _report(tmp_path, "plan", str(cell / "fiducials.csv"), "--candidates",
+                   str(cell / "candidates.csv"))
+    named = _table_keys(sections["plan"], "`plan --json` keys:")
+    assert set(plan) == named, f"undocumented {set(plan) - named}, absent {named - set(plan)}"

@@ -138,6 +138,9 @@ def _tidy(state_dir: str) -> tuple[list[str], dict[str, Any] | None]:
             os.unlink(os.path.join(directory, name))
             warnings.append(f"removed {name}: a snapshot write was interrupted (ignored; the "
                             f"model is rebuilt from the journal)")
+        elif name.startswith("checkpoint.json.tmp."):     # pipeline/checkpoint.py's file
+            os.unlink(os.path.join(directory, name))
+            warnings.append(f"removed {name}: a checkpoint write was interrupted (ignored)")
     path = os.path.join(directory, SNAPSHOT_NAME)
     snapshot = None
     if os.path.lexists(path):
