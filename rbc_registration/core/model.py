@@ -172,20 +172,11 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     if mismatch is not None:
         raise ValueError(mismatch)
     j = len(x)
-    names = tuple(str(i) for i in range(j)) if ids is None else tuple(str(i) for i in ids)
-    if len(names) != j:
-        raise ValueError(f"got {len(names)} ids for {j} fiducials")
-    if len(set(names)) != j:
-        raise ValueError("fiducial ids must be unique")
+    names = _checked_ids(ids, j)
     labels = group_labels(groups, j)
     stats, sigma_est = resolve_repeat_stats(j, config.dimension, working_repeats,
                                             repeat_statistics)
-    if config.known_sigma is not None:
-        sigma, source = config.known_sigma, SigmaSource.GIVEN.value
-    elif sigma_est:     # identical repeats give 0: no noise estimate (noise.identical_repeats)
-        sigma, source = sigma_est, SigmaSource.REPEATS.value
-    else:
-        sigma, source = None, SigmaSource.UNKNOWN.value
+    sigma, source = _sigma(config, sigma_est)
 
     restoration = restore_rigid_body(x, y, config.restoration, config.steps)
     assessment = assess(restoration.sigma_l0, sigma, config.rho_reject, config.rho_apply)
@@ -193,31 +184,9 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
     corrected = _fit_subset(restoration.corrected(x), y, config.corrected_subset,
                             "corrected_subset")
     candidates = _candidates(config.decision, config.interpolation)
-    interpolators: dict[str, Interpolator] = {}
-    failed: dict[str, str] = {}
-    hull = None                         # one hull test of the fiducials, shared (answers.py)
-    pending: Optional[Future] = None    # a large kriging model, built beside the folds
-    for method in INTERPOLATIONS:
-        if method != config.interpolation and method not in candidates:
-            continue
-        try:
-            if method == "paper":
-                interpolators[method] = PaperInterpolator(x, restoration.corrections, hull=hull)
-            else:
-                build = partial(KrigingInterpolator, x, restoration.corrections, sigma,
-                                stats.counts, kriging_hyperparameters, kriging_warm_start,
-                                hull=hull)
-                if summarised(j) and "kriging" in candidates:
-                    # the fit and factor (~3 s of mostly GIL-free numpy at J = 5,000) beside the
-                    # folds, which need the model only for kriging's held-out predictions
-                    pending = in_thread(build, "rbc_kriging")
-                    continue
-                interpolators[method] = build()
-            hull = interpolators[method].hull
-        except ValueError as exc:
-            if method == config.interpolation:
-                raise
-            failed[method] = str(exc)
+    interpolators, failed, pending = _interpolators(
+        x, restoration.corrections, sigma, stats.counts, config.interpolation, candidates,
+        kriging_hyperparameters, kriging_warm_start)
     cv = cross_validate(x, y, [c for c in candidates if c == UNCORRECTED or c in interpolators
                                or (c == "kriging" and pending is not None)],
                         restoration=config.restoration, steps=config.steps,
@@ -240,3 +209,58 @@ def build_model(working: ArrayLike, destination: ArrayLike, config: ModelConfig 
                     sigma, source, assessment.rho, assessment.recommendation,
                     interpolators[config.interpolation], interpolators, decision,
                     None if labels is None else tuple(str(g) for g in groups))
+
+
+def _checked_ids(ids: Optional[Sequence[str]], j: int) -> tuple[str, ...]:
+    """The fiducials' ids as strings (default ``"0"``, ``"1"``, ...), one per fiducial, unique."""
+    names = tuple(str(i) for i in range(j)) if ids is None else tuple(str(i) for i in ids)
+    if len(names) != j:
+        raise ValueError(f"got {len(names)} ids for {j} fiducials")
+    if len(set(names)) != j:
+        raise ValueError("fiducial ids must be unique")
+    return names
+
+
+def _sigma(config: ModelConfig, estimated: Optional[float]) -> tuple[Optional[float], str]:
+    """sigma and its :class:`~.constants.SigmaSource`: given, else from repeats, else unknown."""
+    if config.known_sigma is not None:
+        return config.known_sigma, SigmaSource.GIVEN.value
+    if estimated:     # identical repeats give 0: no noise estimate (noise.identical_repeats)
+        return estimated, SigmaSource.REPEATS.value
+    return None, SigmaSource.UNKNOWN.value
+
+
+def _interpolators(x: NDArray[np.float64], corrections: NDArray[np.float64],
+                   sigma: Optional[float], counts: NDArray[np.int64], configured: str,
+                   candidates: Sequence[str],
+                   kriging_hyperparameters: Optional[KrigingHyperparameters],
+                   kriging_warm_start: Optional[KrigingHyperparameters]
+                   ) -> tuple[dict[str, Interpolator], dict[str, str], Optional[Future]]:
+    """The configured interpolator and the decision's candidates (eq. 5), sharing one hull test
+    (answers.py): (built, failed candidates with the reason, a large kriging model still
+    being built beside the folds or None). The configured one failing raises."""
+    interpolators: dict[str, Interpolator] = {}
+    failed: dict[str, str] = {}
+    hull = None
+    pending: Optional[Future] = None
+    for method in INTERPOLATIONS:
+        if method != configured and method not in candidates:
+            continue
+        try:
+            if method == "paper":
+                interpolators[method] = PaperInterpolator(x, corrections, hull=hull)
+            else:
+                build = partial(KrigingInterpolator, x, corrections, sigma, counts,
+                                kriging_hyperparameters, kriging_warm_start, hull=hull)
+                if summarised(len(x)) and "kriging" in candidates:
+                    # the fit and factor (~3 s of mostly GIL-free numpy at J = 5,000) beside the
+                    # folds, which need the model only for kriging's held-out predictions
+                    pending = in_thread(build, "rbc_kriging")
+                    continue
+                interpolators[method] = build()
+            hull = interpolators[method].hull
+        except ValueError as exc:
+            if method == configured:
+                raise
+            failed[method] = str(exc)
+    return interpolators, failed, pending
