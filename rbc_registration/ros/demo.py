@@ -90,33 +90,10 @@ def run(out: Path, rate: float = 20.0, seed: int = 0, timeout: float = 60.0,
         response = client.correct_targets(working)
         if not response.success:
             raise DemoError(f"correct_targets failed: {response.message}")
-        corrected = np.array([[r.corrected.point.x, r.corrected.point.y]
-                              for r in response.results])
-        uncorrected = np.array([[r.uncorrected.point.x, r.uncorrected.point.y]
-                                for r in response.results])
-        tre_u = np.linalg.norm(uncorrected - truth, axis=1) * MM_PER_M
-        tre_c = np.linalg.norm(corrected - truth, axis=1) * MM_PER_M
-        applied = bool(response.results[0].correction_applied)
-        rho = format_rho(status.rho, SPECS["rho_reject"].default, SPECS["rho_apply"].default)
-        log(f"      rho = sigma_L0 / sigma = {rho} (sigma_L0 "
-            f"{status.sigma_l[0] * MM_PER_M:.3g} mm, sigma {status.sigma * MM_PER_M:.3g} mm from "
-            f"{status.sigma_source}) -> the paper's rule: {status.recommendation}")
-        log(f"      decision ({status.decision_mode}): {status.decision_method}, corrections "
-            f"{'applied' if applied else 'not applied'}")
-        log("      TRE [mm]       median    mean     max")
-        log(f"      uncorrected  {np.median(tre_u):7.3f} {tre_u.mean():7.3f} {tre_u.max():7.3f}")
-        log(f"      corrected    {np.median(tre_c):7.3f} {tre_c.mean():7.3f} {tre_c.max():7.3f}")
-        log(f"      corrections improved {np.mean(tre_c < tre_u) * 100:.0f}% of targets")
+        corrected, tre_u, tre_c, applied = _targets_report(response, truth, status, log)
 
         log(f"[5/5] offline: evaluate {bag.name} -> {out}/")
-        ev = evaluate_contents(contents, settings_for(2, {}))
-        write_report_dir(ev, out, "Demo: RA-like cell")
-        offline = np.array([t["corrected"] for t in ev.report["targets"]])
-        diff = float(np.abs(offline - corrected).max())
-        rho_diff = abs(ev.model.rho - status.rho)
-        agree = diff < 1e-9 and rho_diff < 1e-9
-        log(f"      live node vs offline evaluate: max |corrected| difference {diff:.2g} m, "
-            f"rho difference {rho_diff:.2g} -> {'agree' if agree else 'DIFFER'}")
+        diff, agree = _offline_agrees(contents, out, corrected, status.rho, log)
     finally:
         if client is not None:
             client.close()
@@ -135,6 +112,44 @@ def run(out: Path, rate: float = 20.0, seed: int = 0, timeout: float = 60.0,
     log(f"done in {summary['seconds']:.1f} s: {out}/report.md, figures, report.json, demo.json, "
         "node.log; the node is stopped")
     return summary
+
+
+def _targets_report(response: Any, truth: np.ndarray, status: Any,
+                    log: Callable[[str], None]) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """Step 4's lines: rho, the decision and the targets' TRE [mm] uncorrected and corrected;
+    returns (corrected points [m], TRE uncorrected, TRE corrected, corrections applied)."""
+    corrected = np.array([[r.corrected.point.x, r.corrected.point.y] for r in response.results])
+    uncorrected = np.array([[r.uncorrected.point.x, r.uncorrected.point.y]
+                            for r in response.results])
+    tre_u = np.linalg.norm(uncorrected - truth, axis=1) * MM_PER_M
+    tre_c = np.linalg.norm(corrected - truth, axis=1) * MM_PER_M
+    applied = bool(response.results[0].correction_applied)
+    rho = format_rho(status.rho, SPECS["rho_reject"].default, SPECS["rho_apply"].default)
+    log(f"      rho = sigma_L0 / sigma = {rho} (sigma_L0 "
+        f"{status.sigma_l[0] * MM_PER_M:.3g} mm, sigma {status.sigma * MM_PER_M:.3g} mm from "
+        f"{status.sigma_source}) -> the paper's rule: {status.recommendation}")
+    log(f"      decision ({status.decision_mode}): {status.decision_method}, corrections "
+        f"{'applied' if applied else 'not applied'}")
+    log("      TRE [mm]       median    mean     max")
+    log(f"      uncorrected  {np.median(tre_u):7.3f} {tre_u.mean():7.3f} {tre_u.max():7.3f}")
+    log(f"      corrected    {np.median(tre_c):7.3f} {tre_c.mean():7.3f} {tre_c.max():7.3f}")
+    log(f"      corrections improved {np.mean(tre_c < tre_u) * 100:.0f}% of targets")
+    return corrected, tre_u, tre_c, applied
+
+
+def _offline_agrees(contents: Any, out: Path, corrected: np.ndarray, rho: float,
+                    log: Callable[[str], None]) -> tuple[float, bool]:
+    """Step 5: the bag through ``evaluate`` (report in ``out``); returns the largest difference
+    [m] of its corrected targets from the node's and whether the two agree (and rho)."""
+    ev = evaluate_contents(contents, settings_for(2, {}))
+    write_report_dir(ev, out, "Demo: RA-like cell")
+    offline = np.array([t["corrected"] for t in ev.report["targets"]])
+    diff = float(np.abs(offline - corrected).max())
+    rho_diff = abs(ev.model.rho - rho)
+    agree = diff < 1e-9 and rho_diff < 1e-9
+    log(f"      live node vs offline evaluate: max |corrected| difference {diff:.2g} m, "
+        f"rho difference {rho_diff:.2g} -> {'agree' if agree else 'DIFFER'}")
+    return diff, agree
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
