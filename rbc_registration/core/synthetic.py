@@ -112,24 +112,11 @@ def _bias_field(rng: np.random.Generator, dim: int, extent: NDArray[np.float64],
     return field
 
 
-def make_cell(name: str, seed: int = 0, repeats: Optional[int] = None) -> SyntheticCell:
-    """Generate the synthetic cell ``name`` (``"A"``, ``"B"`` or ``"RA"``).
-
-    :param seed: random seed; the same seed gives the same cell.
-    :param repeats: override the number N of repeated measurements.
-    :raises ValueError: on an unknown cell name.
-    """
-    if name not in SPECS:
-        raise ValueError(f"cell must be one of {CELLS}, got {name!r}")
-    spec = SPECS[name]
-    if repeats is not None:
-        if not 1 <= repeats <= MAX_REPEATS:
-            raise ValueError(f"repeats must be in [1, {MAX_REPEATS}], got {repeats}")
-        spec = CellSpec(spec.name, spec.dimension, spec.sigma, spec.sigma_l0, repeats,
-                        spec.sigma_l0_on_means)
-    rng = np.random.default_rng([seed, CELLS.index(name)])
-    d = spec.dimension
-    if d == 3:
+def _layout(rng: np.random.Generator, spec: CellSpec) -> tuple:
+    """The cell's extent, true fiducial and target points and their repeat counts: the A-like
+    volume (a semi-regular 5 x 5 x 5 grid, 16 targets) or the RA-like plate (holes 25 mm apart,
+    80 of them targets, 52 fiducial holes measured ``spec.repeats`` times)."""
+    if spec.dimension == 3:
         extent = np.array([3000.0, 3000.0, 1800.0])
         axes = [np.linspace(0, e, 5) for e in extent]
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
@@ -149,6 +136,27 @@ def make_cell(name: str, seed: int = 0, repeats: Optional[int] = None) -> Synthe
         fid_n = np.ones(len(fid_true), dtype=int)
         fid_n[rng.choice(len(fid_true), size=52, replace=False)] = spec.repeats
         tgt_n = np.ones(len(tgt_true), dtype=int)
+    return extent, fid_true, tgt_true, fid_n, tgt_n
+
+
+def make_cell(name: str, seed: int = 0, repeats: Optional[int] = None) -> SyntheticCell:
+    """Generate the synthetic cell ``name`` (``"A"``, ``"B"`` or ``"RA"``).
+
+    :param seed: random seed; the same seed gives the same cell.
+    :param repeats: override the number N of repeated measurements.
+    :raises ValueError: on an unknown cell name.
+    """
+    if name not in SPECS:
+        raise ValueError(f"cell must be one of {CELLS}, got {name!r}")
+    spec = SPECS[name]
+    if repeats is not None:
+        if not 1 <= repeats <= MAX_REPEATS:
+            raise ValueError(f"repeats must be in [1, {MAX_REPEATS}], got {repeats}")
+        spec = CellSpec(spec.name, spec.dimension, spec.sigma, spec.sigma_l0, repeats,
+                        spec.sigma_l0_on_means)
+    rng = np.random.default_rng([seed, CELLS.index(name)])
+    d = spec.dimension
+    extent, fid_true, tgt_true, fid_n, tgt_n = _layout(rng, spec)
 
     rot = random_rotation(rng, d)
     trans = rng.uniform(-1000, 1000, size=d)
