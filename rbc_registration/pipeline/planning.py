@@ -99,7 +99,8 @@ def expected_error_now(planning: PlanningState, state: ModelState) -> float:
 
 def plan_config(settings: Settings) -> PlanConfig:
     """The stopping rule's thresholds from the node parameters; one measurement per target."""
-    return PlanConfig(min_gain_fraction=settings.plan_min_gain_fraction,
+    return PlanConfig(within=settings.plan_within,
+                      min_gain_fraction=settings.plan_min_gain_fraction,
                       min_gain_length=settings.plan_min_gain_length,
                       target_repeats=TARGET_REPEATS)
 

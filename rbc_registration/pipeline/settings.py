@@ -198,9 +198,13 @@ SPECS: dict[str, Spec] = {
     "max_candidates": Spec(500, "Most candidates, and most targets, in one ~/suggest_next "
                            "request; a larger request is refused with success=false (bounds "
                            "the time a plan holds the executor).", low=1, high=100_000),
-    "plan_min_gain_fraction": Spec(0.02, "~/suggest_next says enough when the best candidate is "
-                                   "expected to reduce the median target error by less than "
-                                   "this fraction of it (dimensionless).", low=0.0, high=0.99),
+    "plan_within": Spec(0.10, "~/suggest_next says enough when the expected median target "
+                        "error is within this fraction of what measuring every candidate is "
+                        "expected to give (dimensionless); 0 = off.", low=0.0, high=10.0),
+    "plan_min_gain_fraction": Spec(0.0, "... or when the best candidate (or group) is expected "
+                                   "to reduce the median target error by less than this "
+                                   "fraction of it (dimensionless); 0 = off.", low=0.0,
+                                   high=0.99),
     "plan_min_gain_length": Spec(0.0, "... or by less than this [m]; 0 = off.", low=0.0,
                                  high=1.0),
     "plan_max_fiducials": Spec(1000, "Above this many fiducials the planner is off "
@@ -255,6 +259,7 @@ class Settings:
     marker_arrow_gain: float
     max_markers: int
     max_candidates: int
+    plan_within: float
     plan_min_gain_fraction: float
     plan_min_gain_length: float
     plan_max_fiducials: int

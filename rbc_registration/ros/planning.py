@@ -69,21 +69,36 @@ class PlanningMixin:
         if error:
             response.success, response.message = False, error
             return response
+        groups = list(request.candidate_groups) or None
+        if groups is not None and len(groups) != len(request.candidates):
+            response.success = False
+            response.message = (f"candidate_groups: {len(groups)} labels for "
+                                f"{len(request.candidates)} candidates (one per candidate, or "
+                                f"none)")
+            return response
         try:
             plan = suggest(planning, state, s, points_to_array(request.candidates, s.dimension),
                            points_to_array(request.targets, s.dimension)
-                           if request.targets else None, int(request.count))
+                           if request.targets else None, int(request.count), groups)
         except ValueError as exc:
             response.success, response.message = False, str(exc)
             return response
         response.success = True
-        response.ranked = [int(k) for k in plan.sequence]
+        response.ranked = [int(k) for k in plan.ranked_candidates]
+        response.ranked_groups = [plan.unit_labels[u] for u in plan.sequence] \
+            if plan.unit_labels else []
         response.expected_error_after = [float(v) for v in plan.expected_after]
         response.expected_error_now = float(plan.expected_now)
+        response.expected_error_with_all = float("nan") if plan.expected_with_all is None \
+            else float(plan.expected_with_all)
         response.enough, response.reason = bool(plan.enough), plan.reason
+        response.enough_rule = plan.enough_rule or ""
+        response.model_trusted = bool(plan.model_check is not None
+                                      and plan.model_check.trustworthy)
         where = f"{len(plan.points)} targets" if plan.on_targets else \
             f"the work volume ({len(plan.points)} points)"
+        what = "candidate groups" if plan.unit_labels else "candidates"
         response.message = (f"{len(plan.sequence)} suggestion(s) of {len(plan.gains)} "
-                            f"candidates from {plan.fiducial_count} fiducials; median target "
+                            f"{what} from {plan.fiducial_count} fiducials; median target "
                             f"error over {where}")
         return response

@@ -14,7 +14,7 @@ from geometry_msgs.msg import Point  # noqa: E402
 
 from rbc_registration.core.model_planner import expected_target_error, plan_from_model  # noqa: E402,E501
 from rbc_registration.core.planner import PlanConfig  # noqa: E402
-from rbc_registration.pipeline.planning import TARGET_REPEATS  # noqa: E402
+from rbc_registration.pipeline.planning import TARGET_REPEATS, planning_state  # noqa: E402
 
 #: The node plans for targets measured once (pipeline/planning.py).
 NODE = PlanConfig(target_repeats=TARGET_REPEATS)
@@ -64,6 +64,9 @@ class TestSuggestNext(NodeTestBase):
         np.testing.assert_allclose(r.expected_error_after, p.expected_after, rtol=1e-9)
         assert r.expected_error_now == pytest.approx(p.expected_now, rel=1e-9)
         assert (r.enough, r.reason) == (p.enough, p.reason) and not r.enough
+        assert r.model_trusted == p.model_check.trustworthy and r.enough_rule == ""
+        assert r.expected_error_with_all == pytest.approx(p.expected_with_all, rel=1e-9)
+        assert list(r.ranked_groups) == []
         assert r.expected_error_after[0] < r.expected_error_now
         assert "4 suggestion(s) of 48 candidates from 24 fiducials" in r.message
         # targets given: the error is taken there
@@ -74,13 +77,35 @@ class TestSuggestNext(NodeTestBase):
         assert r.expected_error_now == pytest.approx(p.expected_now, rel=1e-9)
 
     def test_stopping_rule_follows_the_parameters(self):
-        node, state = self.planned_node(plan_min_gain_fraction=0.9)
+        node, state = self.planned_node(plan_min_gain_fraction=0.9, plan_within=0.0)
         r = self.suggest(node, self.holes)
         p = plan_from_model(state.model, self.holes,
-                            config=PlanConfig(min_gain_fraction=0.9,
+                            config=PlanConfig(within=0.0, min_gain_fraction=0.9,
                                               target_repeats=TARGET_REPEATS))
-        assert r.success and r.enough and r.reason == p.reason
-        assert r.reason.startswith("enough:")
+        assert r.success and r.reason == p.reason and r.enough == p.enough
+        assert r.model_trusted == p.model_check.trustworthy
+        if r.model_trusted:
+            assert r.enough and r.enough_rule == "gain" and r.reason.startswith("enough:")
+        else:                   # never enough while the error model check fails
+            assert not r.enough and "the stopping rules apply once it is" in r.reason
+
+    def test_grouped_candidates_are_ranked_as_a_whole(self):
+        node, state = self.planned_node()
+        labels = [f"pose{k // 3}" for k in range(len(self.holes))]     # 16 poses of 3 holes
+        r = self.srv(node, SuggestNext, "suggest_next", SuggestNext.Request(
+            candidates=points(self.holes), count=2, candidate_groups=labels))
+        assert r.success, r.message
+        p = plan_from_model(state.model, self.holes, count=2, config=NODE, groups=labels)
+        assert list(r.ranked_groups) == [p.unit_labels[u] for u in p.sequence]
+        assert len(r.ranked_groups) == 2 and len(r.ranked) == 6
+        assert list(r.ranked) == list(p.ranked_candidates)
+        assert all(labels[k] == r.ranked_groups[i // 3] for i, k in enumerate(r.ranked))
+        np.testing.assert_allclose(r.expected_error_after, p.expected_after, rtol=1e-9)
+        assert "2 suggestion(s) of 16 candidate groups" in r.message
+        bad = self.srv(node, SuggestNext, "suggest_next", SuggestNext.Request(
+            candidates=points(self.holes), count=1, candidate_groups=labels[:5]))
+        assert not bad.success and bad.message.startswith("candidate_groups: 5 labels for 48 "
+                                                          "candidates")
 
     def test_status_has_the_expected_target_error_after_a_model(self):
         node = self.make_node()
@@ -89,8 +114,12 @@ class TestSuggestNext(NodeTestBase):
         assert not r.success and r.message.startswith("no model yet")
         node, state = self.planned_node()
         status = node.status()
+        # the served error calibrated by the cross-validated held-out errors (planning thread)
         assert status.expected_target_error == pytest.approx(
-            expected_target_error(state.model, config=NODE), rel=1e-9)
+            planning_state(state).expected_target_error, rel=1e-9)
+        ratio = planning_state(state).check.ratio
+        assert status.expected_target_error == pytest.approx(
+            ratio * expected_target_error(state.model, config=NODE), rel=1e-9)
         assert 0 < status.expected_target_error < 1e-3    # metres: a sub-millimetre error
         published = self.latest(node, RegistrationStatus, f"/{node.get_name()}/status",
                                 predicate=lambda m: not math.isnan(m.expected_target_error))
@@ -102,7 +131,7 @@ class TestSuggestNext(NodeTestBase):
                  and not math.isnan(node.status().expected_target_error),
                  what="the planner on the new model")
         assert node.status().expected_target_error == pytest.approx(
-            expected_target_error(new.model, config=NODE), rel=1e-9)
+            planning_state(new).expected_target_error, rel=1e-9)
         assert new.model is not state.model
 
     def test_bad_requests_get_a_reason_and_the_node_keeps_serving(self):
