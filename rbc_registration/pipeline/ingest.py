@@ -16,6 +16,7 @@ from ..core.accumulator import (FiducialAccumulator, FiducialSet, Measurement, R
 from ..core.constants import DESTINATION, WORKING
 from ..core.pairing import DroppedPoint, PointPair, StampPairer
 from ..core.scale import dropped_z_warning
+from .checkpoint import checkpoint_text, replay, resume
 from .journal import Journal
 from .residuals import FiducialSummary
 from .settings import Settings
@@ -122,6 +123,7 @@ class Ingest:
         self.journal_error = ""      # the last journal write error; "" once a write succeeds
         self.n_journal_failures = 0  # records refused because the journal could not be written
         self.n_replay_skipped = 0    # journal lines skipped on replay (corrupt or invalid)
+        self._replay_errors = 0      # records of the journal that failed the live checks
         # In 2D: the 3D points of each fiducial's first measurement accepted by this process
         # (the accumulator and the journal keep x, y only), for dropped_z_warning.
         self._first_xyz: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}
@@ -134,25 +136,49 @@ class Ingest:
 
     def restore(self) -> int:
         """Replay the journal (if any) into the accumulator; return the measurements restored.
-        Lines that are corrupt (checksum), unparsable or fail the live validation are skipped,
-        logged and counted (:attr:`n_replay_skipped`).
+        With a checkpoint that matches the journal (:mod:`.checkpoint`) its sums are loaded and
+        only the journal's tail is replayed; a checkpoint that is stale, corrupt or of another
+        setup is named in a warning and the journal replayed whole. Lines that are corrupt
+        (checksum), unparsable or fail the live validation are skipped, logged and counted
+        (:attr:`n_replay_skipped`).
 
         :raises journal.JournalMismatch: when the journal belongs to another setup.
         """
         if self._journal is None:
             return 0
-        records, warnings = self._journal.load()
+        resumed, skipped_before = resume(self._acc, self._journal, self._log)
+        if resumed is None:
+            records, warnings = self._journal.load()
+        else:
+            records, warnings = resumed
         for warning in warnings:
             self._log.warning(warning)
         with self._lock:
-            errors = self._acc.restore(records)
+            if resumed is None:
+                errors = self._acc.restore(records)
+            else:
+                errors = replay(self._acc, records, self._journal.position().records
+                                - len(records))
             for error in errors:
                 self._log.warning(f"journal: {error}")
-            self.n_replay_skipped = self._journal.n_skipped + len(errors)
+            self._replay_errors = len(errors)
+            self.n_replay_skipped = self._journal.n_skipped + len(errors) + skipped_before
             if self.n_replay_skipped:
                 self._log.warning(f"journal replay skipped {self.n_replay_skipped} record(s); "
                                   f"restored {self._acc.n_measurements} measurements")
             return self._acc.n_measurements
+
+    def checkpoint_text(self) -> str:
+        """The checkpoint (:mod:`.checkpoint`) of the accumulator at the journal's end, taken
+        under the lock ("" without a journal).
+
+        :raises ValueError: when a value cannot be written (never expected).
+        """
+        with self._lock:
+            if self._journal is None:
+                return ""
+            return checkpoint_text(self._acc, self._journal.header,
+                                   self._journal.position(self._replay_errors))
 
     def _rejected(self, exc: RejectedMeasurement) -> None:
         self.first_rejections.setdefault(exc.reason, exc.message)
@@ -342,6 +368,7 @@ class Ingest:
             self._first_xyz.clear()
             self.first_rejections.clear()
             self.n_journal_failures = 0
+            self._replay_errors = 0
             self.journal_error = ""
             if self._journal is None:
                 return True, "all measurements forgotten"

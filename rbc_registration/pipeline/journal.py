@@ -32,6 +32,13 @@ leaves nothing behind: a partly written line is cut off again at once, so the re
 reappear later (the caller does not count it).
 
 ``calibration.json``: the latest model, see :mod:`rbc_registration.pipeline.snapshot`.
+
+``checkpoint.json``: the accumulator's running sums at a journal position (bytes, lines,
+records, CRC-32 of those bytes), see :mod:`rbc_registration.pipeline.checkpoint`. The journal
+keeps the running CRC-32 of its bytes as it appends (:meth:`Journal.position`);
+:meth:`Journal.load_after` checks a checkpoint's position against the file in 1 MiB chunks and
+reads only the records after it, so a start costs a pass of ``zlib.crc32`` over the journal
+instead of parsing and holding every record.
 """
 
 from __future__ import annotations
@@ -40,9 +47,11 @@ import errno
 import json
 import os
 import time
+import zlib
 from typing import Any, Iterable, Optional
 
 from ..core.accumulator import Record
+from .checkpoint import CHECKPOINT_NAME, JournalPosition
 from .files import open_private, private_dir, read_fd
 from .journal_records import (JOURNAL_NAME, JOURNAL_VERSION, MAX_JOURNAL_BYTES, MAX_LINE_BYTES,
                               READABLE_VERSIONS, JournalMismatch, parse_line, record_from_json,
@@ -79,6 +88,11 @@ class Journal:
         self._dirty = False           # a failed write could not be cut off yet
         self.n_skipped = 0            # lines skipped by the last load (torn, corrupt, invalid)
         self._unterminated: Optional[int] = None   # offset of a kept last record without newline
+        # The journal position (checkpoint.JournalPosition) of the end of the file: its CRC-32,
+        # lines and records, and the lines in it the last load skipped that stay in the file.
+        self._crc = self._lines = self._records = self._kept_skips = 0
+        #: Why the last :meth:`load_after` did not match ("" when it did).
+        self.mismatch = ""
 
     def load(self) -> tuple[list[Record], list[str]]:
         """Read the existing journal (if any) and open it for appending.
@@ -102,7 +116,81 @@ class Journal:
             self._fd = None
             warnings.append(self._migrate(records))
             fd = open_private(self.path, os.O_RDWR | os.O_APPEND)
-            self._fd, good_end = fd, os.fstat(fd).st_size
+            self._fd = fd
+            data = read_fd(fd, self.path, MAX_JOURNAL_BYTES)
+            good_end = len(data)
+        self._crc, self._lines = zlib.crc32(data[:good_end]), data.count(b"\n", 0, good_end)
+        self._records = len(records)
+        return self._opened(records, warnings, good_end, data)
+
+    def load_after(self, position: JournalPosition) -> Optional[tuple[list[Record], list[str]]]:
+        """Open the journal for appending when its first ``position.offset`` bytes still are
+        those of a checkpoint's :class:`~.checkpoint.JournalPosition` (same header, lines and
+        CRC-32; read in chunks, never held), and read only the records after them.
+
+        :return: the records after the position and warnings about skipped lines (as
+            :meth:`load`), or ``None`` when the journal does not match (:attr:`mismatch` says
+            why; nothing is opened: call :meth:`load`).
+        :raises JournalMismatch: as :meth:`load`, for a header of another setup.
+        :raises NotARegularFile: as :meth:`load`.
+        """
+        self.close()
+        fd = open_private(self.path, _APPEND_OR_CREATE)
+        try:
+            self.mismatch = self._check_prefix(fd, position)
+            if self.mismatch:
+                os.close(fd)
+                return None
+            size = os.fstat(fd).st_size
+            if size > MAX_JOURNAL_BYTES:
+                raise ValueError(f"{self.path} is {size} bytes, more than the limit of "
+                                 f"{MAX_JOURNAL_BYTES}: refused")
+            tail = _pread_all(fd, position.offset, size)
+            records, warnings, good_end, _ = self._parse(tail, position.lines, JOURNAL_VERSION)
+        except BaseException:
+            os.close(fd)
+            raise
+        self._fd = fd
+        if self._unterminated is not None:
+            self._unterminated += position.offset
+        self._crc = zlib.crc32(tail[:good_end], position.crc)
+        self._lines = position.lines + tail.count(b"\n", 0, good_end)
+        self._records = position.records + len(records)
+        self._kept_skips += position.skipped
+        return self._opened(records, warnings, position.offset + good_end, tail, position.offset,
+                            position.crc)
+
+    def _check_prefix(self, fd: int, position: JournalPosition) -> str:
+        """Why the journal open as ``fd`` does not start with ``position``'s bytes ("": it
+        does). The header is checked as :meth:`load` checks it."""
+        size = os.fstat(fd).st_size
+        if size < position.offset:
+            return f"the journal has {size} bytes, fewer than the checkpoint's {position.offset}"
+        first = os.pread(fd, MAX_LINE_BYTES + 1, 0).split(b"\n", 1)[0]
+        try:
+            header = parse_line(first.decode("utf-8"))
+        except (ValueError, UnicodeDecodeError):
+            header = None
+        if not isinstance(header, dict) or header.get("t") != "h":
+            return "the journal does not start with a header line"
+        if self._check_header(header) != JOURNAL_VERSION:
+            return f"the journal is of version {header.get('version')}"
+        crc = lines = 0
+        for start in range(0, position.offset, 1 << 20):
+            chunk = os.pread(fd, min(1 << 20, position.offset - start), start)
+            crc, lines = zlib.crc32(chunk, crc), lines + chunk.count(b"\n")
+        if position.offset and os.pread(fd, 1, position.offset - 1) != b"\n":
+            return f"byte {position.offset} of the journal does not end a line"
+        if (crc, lines) != (position.crc, position.lines):
+            return (f"its first {position.offset} bytes are not the checkpoint's (CRC-32 "
+                    f"{crc:08x}, {lines} lines; the checkpoint's {position.crc:08x}, "
+                    f"{position.lines} lines)")
+        return ""
+
+    def _opened(self, records: list[Record], warnings: list[str], good_end: int, data: bytes,
+                base: int = 0, base_crc: int = 0) -> tuple[list[Record], list[str]]:
+        """Open for appending after ``good_end`` bytes and end a kept last line without its
+        newline (``data``: the bytes read from offset ``base``, whose CRC-32 is ``base_crc``)."""
         error = self._open(truncate_to=good_end)
         if self._unterminated is not None:
             try:
@@ -110,6 +198,8 @@ class Journal:
             except OSError as exc:        # cannot end the line: cut it off as a torn record
                 os.ftruncate(self._fd, self._unterminated)
                 self._size = self._unterminated
+                self._crc = zlib.crc32(data[:self._unterminated - base], base_crc)
+                self._records -= 1
                 records.pop()
                 warnings[-1] = (f"{self.path}: last record without a newline skipped: the "
                                 f"newline could not be added ({exc})")   # the parse's last
@@ -117,13 +207,16 @@ class Journal:
             warnings.append(error)
         return records, warnings
 
-    def _parse(self, data: bytes) -> tuple[list[Record], list[str], int, Optional[int]]:
-        """(records, warnings, bytes of whole lines, header version or None)."""
+    def _parse(self, data: bytes, lineno: int = 0, version: Optional[int] = None
+               ) -> tuple[list[Record], list[str], int, Optional[int]]:
+        """(records, warnings, bytes of whole lines, header version or None) of ``data``,
+        whose first line is line ``lineno + 1`` of the journal (``version``: of a header read
+        before it)."""
         records: list[Record] = []
         warnings: list[str] = []
-        offset = good_end = lineno = 0
+        offset = good_end = 0
         self._unterminated = None
-        version: Optional[int] = None
+        self._kept_skips = 0   # unreadable lines: they stay in the file
         unsealed = 0   # records that failed their checksum
         while offset < len(data):
             end = data.find(b"\n", offset)
@@ -162,6 +255,7 @@ class Journal:
                 raise
             except (ValueError, KeyError, TypeError, RecursionError) as exc:
                 warnings.append(f"{self.path}:{lineno}: unreadable record skipped ({exc})")
+                self._kept_skips += 1
         if version is None and unsealed and not records:
             raise JournalMismatch(
                 f"{self.path} has no header line and none of its {unsealed} record(s) was "
@@ -203,11 +297,11 @@ class Journal:
         backup = f"{self.path}.v1.{_stamp()}.bak"
         os.link(self.path, backup)
         header = json.dumps(self.header, separators=(",", ":")).encode("utf-8") + b"\n"
-        write_atomic(self.path, (header + self._lines(records)).decode("utf-8"))
+        write_atomic(self.path, (header + self._sealed(records)).decode("utf-8"))
         return (f"{self.path}: journal version 1 rewritten as version {JOURNAL_VERSION} "
                 f"({len(records)} records; the old file is kept as {backup})")
 
-    def _lines(self, records: Iterable[Record]) -> bytes:
+    def _sealed(self, records: Iterable[Record]) -> bytes:
         return b"".join(seal(record_to_json(r).encode("utf-8"), self.digest) + b"\n"
                         for r in records)
 
@@ -220,6 +314,8 @@ class Journal:
         if os.fstat(fd).st_size != truncate_to:
             os.ftruncate(fd, truncate_to)
         self._size, self._dirty = truncate_to, False
+        if truncate_to == 0:
+            self._crc = self._lines = self._records = self._kept_skips = 0
         self._needs_header = truncate_to == 0
         if self._needs_header:
             try:
@@ -255,6 +351,7 @@ class Journal:
                 self._dirty = True
             raise
         self._size += len(data)
+        self._crc, self._lines = zlib.crc32(data, self._crc), self._lines + data.count(b"\n")
         self._needs_header = False
 
     def append(self, record: Record) -> None:
@@ -263,14 +360,18 @@ class Journal:
         :raises OSError: when it cannot be written in full; nothing of it stays in the journal
             and the caller must not count the record.
         """
-        self._write(self._lines((record,)))
+        self._write(self._sealed((record,)))
+        self._records += 1
 
     def append_many(self, records: Iterable[Record]) -> None:
         """Append several records (one write): all of them or, on ``OSError``, none."""
-        self._write(self._lines(records))
+        records = list(records)
+        self._write(self._sealed(records))
+        self._records += len(records)
 
     def archive(self) -> Optional[str]:
-        """Move the journal (and snapshot) aside as ``*.<UTC time>.bak`` and start a new one.
+        """Move the journal (and snapshot and checkpoint) aside as ``*.<UTC time>.bak`` and start
+        a new one.
 
         :return: the archived journal's path, or ``None`` when there was none.
         :raises OSError: when a file cannot be moved or the new journal cannot be created; the
@@ -278,9 +379,10 @@ class Journal:
             already: the next model rewrites it).
         """
         suffix = _stamp()
-        snapshot = os.path.join(self.state_dir, SNAPSHOT_NAME)
-        if os.path.exists(snapshot):
-            os.replace(snapshot, f"{snapshot}.{suffix}.bak")
+        for name in (SNAPSHOT_NAME, CHECKPOINT_NAME):
+            aside = os.path.join(self.state_dir, name)
+            if os.path.exists(aside):
+                os.replace(aside, f"{aside}.{suffix}.bak")
         archived = f"{self.path}.{suffix}.bak" if os.path.exists(self.path) else None
         if archived:
             os.replace(self.path, archived)     # the open descriptor moves with the file
@@ -299,6 +401,13 @@ class Journal:
         self._open(truncate_to=0)
         return archived
 
+    def position(self, skipped: int = 0) -> JournalPosition:
+        """The position of the end of the journal (after the last record written), for a
+        checkpoint; ``skipped``: lines the caller's replay skipped besides the unreadable ones
+        (records that failed the live checks)."""
+        return JournalPosition(self._size, self._lines, self._records, self._crc,
+                               self._kept_skips + skipped)
+
     def close(self) -> None:
         """Close the file (appends need :meth:`load` again)."""
         if self._fd is not None:
@@ -307,6 +416,18 @@ class Journal:
 
     def __del__(self) -> None:  # a journal dropped without close() must not leak its descriptor
         self.close()
+
+
+def _pread_all(fd: int, start: int, end: int) -> bytes:
+    """Bytes ``start`` to ``end`` of the file open as ``fd``."""
+    chunks, offset = [], start
+    while offset < end:
+        chunk = os.pread(fd, min(1 << 20, end - offset), offset)
+        if not chunk:
+            break
+        chunks.append(chunk)
+        offset += len(chunk)
+    return b"".join(chunks)
 
 
 def _stamp() -> str:

@@ -35,6 +35,7 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetF
 from ..core.accumulator import FiducialAccumulator
 from ..core.pairing import DESTINATION, WORKING, StampPairer
 from ..core.records import RejectedMeasurement, quote
+from ..pipeline.checkpoint import checkpoint_path
 from ..pipeline.files import StateDirLock
 from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
@@ -204,7 +205,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
                 self._tf_transforms = dict.fromkeys(("corrected", "uncorrected"), transform)
                 self._publish_tf()
             self.get_logger().info(self._loaded.describe())
-        self._snapshots = LatestWriter(self._save, self._on_snapshot_error)
+        self._snapshots = LatestWriter(self._save_and_checkpoint, self._on_snapshot_error)
         self._start_planner()   # the planner's error model of every new model, in its thread
         self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
                                        self._on_worker_error, clock)
@@ -281,6 +282,18 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             self.get_logger().warning(state.error)
         elif state.warning and _wording(state.warning) != _wording(previous.warning):
             self.get_logger().warning(state.warning)
+
+    def _save_and_checkpoint(self, item: tuple[ModelState, int]) -> str:
+        """The snapshot of ``(state, generation)`` (:meth:`_save`), then the checkpoint of the
+        measurements now (pipeline/checkpoint.py: a restart loads it and replays only the
+        journal's tail), both unless ``~/reset`` came since; in the snapshot thread."""
+        path = self._save(item)
+        if path:
+            text = self._ingest.checkpoint_text()
+            with self._snapshot_lock:
+                if text and item[1] == self._generation:
+                    write_atomic(checkpoint_path(self._settings.state_dir), text)
+        return path
 
     def _on_worker_error(self, exc: BaseException) -> None:
         if isinstance(exc, BuildCancelled):   # destroy_node killed the build process
