@@ -12,6 +12,9 @@ seed 0), cut down to a size read at a glance:
   measured 16 times, which gives sigma); candidates: the other fiducial holes; targets: 20 of the
   plate's targets with their truth.
 
+Coordinates are rounded to 1e-9 mm and computed with one BLAS thread, so the files come out the
+same byte for byte on every run (test/test_examples.py checks the committed ones).
+
 Usage: ``python examples/make_examples.py [--out examples]`` (the committed files are its output).
 """
 
@@ -20,12 +23,21 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
+from rbc_registration.runtime import default_one_blas_thread
 
-from rbc_registration.core.synthetic import make_cell
-from rbc_registration.io.csv_io import write_fiducials, write_targets
+default_one_blas_thread()   # before numpy loads: the same sums whatever the machine's cores
+
+import numpy as np  # noqa: E402
+
+from rbc_registration.core.synthetic import make_cell  # noqa: E402
+from rbc_registration.io.csv_io import write_fiducials, write_targets  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
+DECIMALS = 9   # 1e-9 mm
+
+
+def _r(values):
+    return np.round(np.asarray(values, dtype=np.float64), DECIMALS)
 
 
 def write_cell(directory: Path, cell, measured: np.ndarray, targets: np.ndarray) -> None:
@@ -35,12 +47,12 @@ def write_cell(directory: Path, cell, measured: np.ndarray, targets: np.ndarray)
     ids = np.array(cell.fiducial_ids)
     rest = np.setdiff1d(np.arange(len(ids)), measured)
     write_fiducials(directory / "fiducials.csv", ids[measured],
-                    [cell.fiducial_measurements[k] for k in measured],
-                    [cell.fiducial_truth[k][None] for k in measured])
+                    [_r(cell.fiducial_measurements[k]) for k in measured],
+                    [_r(cell.fiducial_truth[k][None]) for k in measured])
     write_targets(directory / "candidates.csv", [f"C{ids[k][1:]}" for k in rest],
-                  np.array([cell.fiducial_measurements[k][0] for k in rest]))
+                  _r([cell.fiducial_measurements[k][0] for k in rest]))
     write_targets(directory / "targets.csv", np.array(cell.target_ids)[targets],
-                  cell.target_means[targets], cell.target_truth[targets])
+                  _r(cell.target_means[targets]), _r(cell.target_truth[targets]))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -571,3 +571,60 @@ def test_cli_md_json_tables_name_the_keys_the_reports_have(tmp_path):
                    str(cell / "candidates.csv"))
     named = _table_keys(sections["plan"], "`plan --json` keys:")
     assert set(plan) == named, f"undocumented {set(plan) - named}, absent {named - set(plan)}"
+
+
+def _printed(*argv: str) -> list[str]:
+    import contextlib
+    import io
+
+    from rbc_registration.cli import main
+
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer):
+        assert main(list(argv)) == 0, argv
+    return [line.rstrip() for line in buffer.getvalue().splitlines()]
+
+
+def _blocks(text: str, language: str) -> list[list[str]]:
+    return [block.splitlines() for block in re.findall(rf"```{language}\n(.*?)```", text, re.S)]
+
+
+NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
+
+
+def _same_line(shown: str, printed: str, rel: float = 1e-3) -> bool:
+    """``shown`` is ``printed``: the same text, the same numbers to ``rel`` (numpy and scipy
+    versions move the last digits)."""
+    if NUMBER.sub("#", shown.rstrip()) != NUMBER.sub("#", printed):
+        return False
+    return all(math.isclose(float(a), float(b), rel_tol=rel, abs_tol=1e-9)
+               for a, b in zip(NUMBER.findall(shown), NUMBER.findall(printed)))
+
+
+def _not_printed(shown: list[str], printed: list[str]) -> list[str]:
+    return [line for line in shown if not any(_same_line(line, p) for p in printed)]
+
+
+def test_cli_md_output_excerpts_are_what_the_commands_print(tmp_path):
+    """The ```text excerpt of register's output and the ```xml URDF joint of export are lines
+    the commands print on the example cell, as they are now."""
+    cell = ROOT / "examples" / "cell3d"
+    report = tmp_path / "cell3d.json"
+    printed = _printed("register", str(cell / "fiducials.csv"), "--targets",
+                       str(cell / "targets.csv"), "--json", str(report))
+    text = (ROOT / "docs" / "CLI.md").read_text(encoding="utf-8")
+    (excerpt,) = _blocks(text, "text")
+    missing = _not_printed(excerpt, printed)
+    assert not missing, f"docs/CLI.md shows lines register does not print: {missing}"
+    printed = _printed("export", str(report), "--out", str(tmp_path / "c.yaml"), "--urdf",
+                       str(tmp_path / "c.urdf.xacro"), "--parent-frame", "world",
+                       "--child-frame", "tracker")
+    (joint,) = _blocks(text, "xml")
+    missing = _not_printed(joint, printed)
+    assert not missing, f"docs/CLI.md shows joint lines export does not print: {missing}"
+
+
+def test_a_changed_figure_is_told_from_a_moved_last_digit():
+    assert _same_line("x = 463.1212483 mm", "x = 463.1212485 mm")
+    assert not _same_line("x = 463.1212483 mm", "x = 463.9 mm")
+    assert not _same_line("x = 463.1212483 mm", "y = 463.1212483 mm")
