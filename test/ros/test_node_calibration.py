@@ -4,7 +4,9 @@
 measurement, says so in ~/status, answers ~/correct_target(s) from the file's answers as the
 first node did, and a live model replaces it once measurements arrive."""
 
+import importlib.util
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -93,7 +95,7 @@ class TestSavedCalibration(NodeTestBase):
         np.testing.assert_allclose(point_xyz(single.destination.point),
                                    point_xyz(live_answers.results[0].destination.point),
                                    rtol=0, atol=1e-9)
-        # nothing written but the (empty) journal and the state_dir lock (issue 11)
+        # nothing written but the (empty) journal and the state_dir lock
         assert [n for n in os.listdir(second_dir) if n not in ("journal.jsonl", LOCK_NAME)] == []
 
         # Measurements arrive: the live model (here of half the fiducials) replaces the file.
@@ -111,9 +113,9 @@ class TestSavedCalibration(NodeTestBase):
 
     def test_an_uncorrected_calibration_is_published_as_the_uncorrected_registration(self,
                                                                                   tmp_path):
-        """A review: a file of ``registration: uncorrected`` was published on ~/transform, the
-        topic of the corrected registration {R_c, tau_c}; it goes on ~/transform_uncorrected
-        (and /tf_static), where the live model's {R_u, tau_u} later replaces it."""
+        """A file of ``registration: uncorrected`` goes on ~/transform_uncorrected (not on
+        ~/transform, the topic of the corrected registration {R_c, tau_c}) and /tf_static, where
+        the live model's {R_u, tau_u} later replaces it."""
         first = self.make_node(state_dir=str(tmp_path / "a"), tf_broadcast="uncorrected")
         self.stream(first)
         self.recompute(first)
@@ -212,3 +214,69 @@ class TestRestartWarnings(NodeTestBase):
         assert len(warnings) == 1, warnings
         assert "sigma 0.0 (now 0.0001)" in warnings[0]
         assert "point_mode" not in warnings[0] and "calibration_file" not in warnings[0]
+
+
+def _launch_module(name):
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(
+        os.path.abspath(__file__)))), "launch", name)
+    spec = importlib.util.spec_from_file_location(name.replace(".", "_"), path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+class TestNamedCalibrations(NodeTestBase):
+    """calibration_name: ~/save writes state_dir/calibrations/NAME.yaml; calibration_file:=NAME
+    loads it, also as publish.launch.py calibration:=NAME passes it on."""
+
+    def test_save_under_a_name_and_load_it_by_name(self, tmp_path):
+        state_dir = tmp_path / "cell"
+        first = self.make_node(state_dir=str(state_dir))
+        self.stream(first)
+        self.recompute(first)
+        result = first.set_parameters([Parameter("calibration_name", value="line_1")])
+        assert result[0].successful, result[0].reason
+        saved = self.srv(first, Trigger, "save")
+        path = state_dir / "calibrations" / "line_1.yaml"
+        assert saved.success and str(path) in saved.message, saved.message
+        assert not (state_dir / "calibration.yaml").exists()
+        bad = first.set_parameters([Parameter("calibration_name", value="../up")])
+        assert not bad[0].successful and "a calibration name is 1-100 letters" in bad[0].reason
+        live = self.correct(first, self.cell["targets"][0])
+        self.ros.remove(first)
+        self.nodes.remove(first)
+
+        # publish.launch.py calibration:=line_1 -> registration.launch.py -> the node's
+        # parameters (state_dir:=auto derived from ROS_HOME), with the named file in place
+        values = {n: d for n, d, _ in _launch_module("registration.launch.py").ARGUMENTS}
+        values.update(_launch_module("publish.launch.py").included_arguments(
+            {"calibration": "line_1"}))
+        values["params_file"] = ""
+        ros_home = tmp_path / "ros_home"
+        _, overrides = _launch_module("registration.launch.py").node_parameters(
+            values, environ={"ROS_HOME": str(ros_home)})
+        assert overrides["calibration_file"] == "line_1"
+        launched_dir = overrides["state_dir"]
+        assert launched_dir.startswith(str(ros_home))
+        os.makedirs(os.path.join(launched_dir, "calibrations"))
+        shutil.copy(path, os.path.join(launched_dir, "calibrations", "line_1.yaml"))
+
+        second = self.make_node(**overrides)
+        (entry,) = [t for t in self.latest(second, TFMessage, TOPIC, qos=STATIC_QOS).transforms
+                    if t.child_frame_id == "tracker"]
+        np.testing.assert_allclose(transform_to_matrix(entry),
+                                   read_calibration(str(path)).transform_matrix(), atol=1e-12)
+        r = self.correct(second, self.cell["targets"][0])
+        assert r.success and r.method.endswith(" (calibration file)"), r.message
+        assert os.path.join(launched_dir, "calibrations", "line_1.yaml") in r.message
+        np.testing.assert_allclose(point_xyz(r.destination.point),
+                                   point_xyz(live.destination.point), rtol=0, atol=1e-9)
+
+    def test_a_name_that_is_not_there_or_not_a_name_is_refused(self, tmp_path):
+        with pytest.raises(ValueError, match=r"calibrations/absent\.yaml"):
+            RegistrationNode("reg_noname", context=self.ros.context, parameter_overrides=[
+                Parameter("state_dir", value=str(tmp_path)),
+                Parameter("calibration_file", value="absent")])
+        with pytest.raises(ValueError, match="is a calibration name .* but state_dir is empty"):
+            RegistrationNode("reg_noname2", context=self.ros.context, parameter_overrides=[
+                Parameter("state_dir", value=""), Parameter("calibration_file", value="absent")])
