@@ -124,6 +124,9 @@ class Ingest:
         self.n_journal_failures = 0  # records refused because the journal could not be written
         self.n_replay_skipped = 0    # journal lines skipped on replay (corrupt or invalid)
         self._replay_errors = 0      # records of the journal that failed the live checks
+        #: How the last :meth:`restore` went: "" (the journal replayed whole), or which records
+        #: came from the checkpoint and how many of the journal's tail were replayed.
+        self.restore_summary = ""
         # In 2D: the 3D points of each fiducial's first measurement accepted by this process
         # (the accumulator and the journal keep x, y only), for dropped_z_warning.
         self._first_xyz: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}
@@ -151,6 +154,9 @@ class Ingest:
             records, warnings = self._journal.load()
         else:
             records, warnings = resumed
+            total = self._journal.position().records
+            self.restore_summary = (f"the sums of the first {total - len(records)} records from "
+                                    f"the checkpoint, the journal's last {len(records)} replayed")
         for warning in warnings:
             self._log.warning(warning)
         with self._lock:

@@ -213,10 +213,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             self._state = BUILDING_STATE
             self._worker.request_now()
         self._publish_status()
+        how = f" ({self._ingest.restore_summary})" if self._ingest.restore_summary else ""
         self.get_logger().info(
             f"registering {s.working_frame!r} -> {s.destination_frame!r} ({s.dimension}D); "
             f"state_dir {s.state_dir or '(none: no persistence)'}; restored {restored} "
-            f"measurements; /tf_static {s.tf_broadcast if self._tf.available else 'off'}")
+            f"measurements{how}; /tf_static {s.tf_broadcast if self._tf.available else 'off'}")
 
     # -- inputs -------------------------------------------------------------------------------
     def _on_fiducial_pair(self, msg: FiducialPair) -> None:
