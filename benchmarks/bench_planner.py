@@ -1,4 +1,4 @@
-"""Speed of the measurement planner (issue 13 target: rank 300 candidates at J = 100 in <= 0.5 s).
+"""Speed of the measurement planner (target: rank 300 candidates at J = 100 in <= 0.5 s).
 
 Run: ``.venv/bin/python benchmarks/bench_planner.py [--repeats 15]``.
 
@@ -6,8 +6,10 @@ A bias-plus-noise cell like the synthetic ones (2D: 400 x 500 mm plate; 3D: 3 x 
 J = 100 fiducials, C = 300 candidates, the error model from a kriging model built once (its
 hyper-parameter fit is timed separately: a node or CLI has the model already). Timed:
 :func:`plan` with targets (K = 80) or the work volume (about 400 grid points), count 1 and 10,
-isotropic and anisotropic noise; and the whole :func:`plan_from_model` including the error
-model. The cases are run in turn, round after round, so machine load hits all alike; min and
+isotropic and anisotropic noise, candidates one by one or in groups of 3 (a robot pose, a
+rank-3 update each); and the whole :func:`plan_from_model` including the error model and its
+check against the cross-validated errors (:mod:`rbc_registration.core.model_check`). The cases
+are run in turn, round after round, so machine load hits all alike; min and
 median over the rounds. 1 BLAS thread (as the node runs). Prints Markdown.
 """
 
@@ -59,7 +61,13 @@ def main(argv=None) -> int:
                     key = (dim, label, tg_label, count)
                     cases[key] = (lambda e=e, tg=tg, count=count, x=x, cand=cand:
                                   plan(x, cand, e, tg, count=count))
-        cases[(dim, "isotropic", "80 targets, plan_from_model (error model incl.)", 1)] = (
+        groups = [f"pose{k // 3}" for k in range(len(cand))]
+        for count in (1, 10):
+            cases[(dim, "isotropic", f"80 targets, {len(cand) // 3} groups of 3", count)] = (
+                lambda em=em, x=x, cand=cand, tg=targets, count=count, groups=groups:
+                plan(x, cand, em, tg, count=count, groups=groups))
+        cases[(dim, "isotropic", "80 targets, plan_from_model (error model and its check "
+                                 "incl.)", 1)] = (
             lambda m=model, cand=cand, tg=targets: plan_from_model(m, cand, tg))
     times = {key: [] for key in cases}
     sizes = {key: len(fn().points) for key, fn in cases.items()}      # warm-up

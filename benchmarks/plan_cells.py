@@ -1,8 +1,9 @@
 """The measurement planner on the synthetic RA-like (2D) and A-like (3D) cells, as a user runs it.
 
 Run: ``.venv/bin/python benchmarks/plan_cells.py [--seeds 10] [--first-seed 0] [--cells RA,A]
-[--json out.json]``; the cells can run in parallel (one ``--cells`` and ``--json`` each) and be
-reported together with ``--load ra.json,a.json``.
+[--json out.json]`` (``--cells robot``: the grouped robot cell, :func:`run_robot`); the cells
+can run in parallel (one ``--cells`` and ``--json`` each) and be reported together with
+``--load ra.json,a.json``.
 
 Per cell and seed, single measurements (the first measurement of every fiducial and target; the
 truth known), sigma unknown, the model's defaults (``build_model`` with
@@ -238,6 +239,90 @@ def report(name: str, runs: list[dict]) -> list[str]:
     return lines
 
 
+#: Robot cell (``--cells robot``): poses in the pool, reflectors kept per pose, the poses
+#: measured first (at random), the poses per batch, and the pose counts reported.
+ROBOT_POSES = 60
+ROBOT_PER_POSE = 3
+ROBOT_START = 4
+ROBOT_BATCH = 2
+ROBOT_COUNTS = (4, 6, 8, 10, 12, 14, 16, 20, 24, 30)
+
+
+class RobotPlan:
+    """A grouped robot cell (:func:`rbc_registration.core.synthetic_structure.make_robot_cell`,
+    :data:`ROBOT_POSES` poses of exactly :data:`ROBOT_PER_POSE` reflectors, one measurement
+    each): a candidate is a pose, measured as a whole."""
+
+    def __init__(self, seed: int) -> None:
+        from rbc_registration.core.synthetic_structure import make_robot_cell
+
+        c = make_robot_cell(seed, poses=ROBOT_POSES, targets=40)
+        keep = [k for k, g in enumerate(c.fiducial_groups)
+                if c.fiducial_groups[:k].count(g) < ROBOT_PER_POSE]
+        self.x, self.y = c.working[keep], c.destination[keep]
+        self.groups = [c.fiducial_groups[k] for k in keep]
+        self.poses = list(dict.fromkeys(self.groups))
+        self.tw, self.td = c.target_working, c.target_truth
+
+    def members(self, poses) -> list[int]:
+        chosen = set(poses)
+        return [k for k, g in enumerate(self.groups) if g in chosen]
+
+    def model(self, poses) -> RbcModel:
+        idx = self.members(poses)
+        return build_model(self.x[idx], self.y[idx], ModelConfig(dimension=3),
+                           groups=[self.groups[k] for k in idx])
+
+    def tre(self, model: RbcModel) -> float:
+        served = model.correct(self.tw).destination
+        return float(np.median(np.linalg.norm(served - self.td, axis=1)))
+
+
+def run_robot(seed: int, config: PlanConfig) -> dict:
+    """Planner by pose (batches of :data:`ROBOT_BATCH` poses, re-planned) against random poses,
+    the median target TRE at :data:`ROBOT_COUNTS` poses."""
+    cell = RobotPlan(seed)
+    rng = np.random.default_rng([seed, 17])
+    perm = [cell.poses[k] for k in rng.permutation(len(cell.poses))]
+    chosen = perm[:ROBOT_START]
+    t0 = time.perf_counter()
+    tre = {}
+    while len(chosen) <= ROBOT_COUNTS[-1]:
+        m = cell.model(chosen)
+        if len(chosen) in ROBOT_COUNTS:
+            tre[len(chosen)] = cell.tre(m)
+        rest = [k for k, g in enumerate(cell.groups) if g not in set(chosen)]
+        take = min(ROBOT_BATCH, min([c for c in ROBOT_COUNTS if c > len(chosen)]
+                                    + [ROBOT_COUNTS[-1] + 1]) - len(chosen))
+        p = plan_from_model(m, cell.x[rest], cell.tw, count=take, config=config,
+                            groups=[cell.groups[k] for k in rest])
+        chosen = chosen + [p.unit_labels[u] for u in p.sequence]
+    rand = [cell.tre(cell.model(perm[:j])) for j in ROBOT_COUNTS]
+    return {"planner": {"tre": [tre[j] for j in ROBOT_COUNTS]}, "random": {"tre": rand},
+            "all_tre": cell.tre(cell.model(cell.poses)), "seconds": time.perf_counter() - t0}
+
+
+def robot_report(runs: list[dict]) -> list[str]:
+    mine = np.array([r["planner"]["tre"] for r in runs])
+    rand = np.array([r["random"]["tre"] for r in runs])
+    diff = mine - rand
+    se = diff.std(axis=0, ddof=1) / np.sqrt(len(runs))
+    lines = [f"### Robot cell, by pose: mean over {len(runs)} seeds of the median target TRE (mm)",
+             "", f"{ROBOT_POSES} poses of {ROBOT_PER_POSE} reflectors, 40 targets, one measurement "
+             f"each, sigma unknown, groups given; {ROBOT_START} random poses first, then "
+             f"{ROBOT_BATCH} poses a batch. Every pose measured: "
+             f"{np.mean([r['all_tre'] for r in runs]):.4f} mm.", "",
+             "| poses | fiducials | planner (by pose) | random poses | planner - random (± SE) |",
+             "|---|---|---|---|---|"]
+    for i, j in enumerate(ROBOT_COUNTS):
+        lines.append(f"| {j} | {j * ROBOT_PER_POSE} | {mine[:, i].mean():.4f} | "
+                     f"{rand[:, i].mean():.4f} | {diff[:, i].mean():+.4f} ± {se[i]:.4f} |")
+    above = [j for j, v in zip(ROBOT_COUNTS[1:], diff[:, 1:].mean(axis=0)) if v >= 0]
+    lines += ["", f"- pose counts after the start where the planner's mean is not below "
+              f"random's: {', '.join(map(str, above)) or 'none'}"]
+    return lines
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", default="RA,A")
@@ -259,6 +344,14 @@ def main(argv=None) -> int:
         for name in args.cells.split(","):
             results[name] = []
             for seed in range(args.first_seed, args.first_seed + args.seeds):
+                if name == "robot":
+                    r = run_robot(seed, config)
+                    print(f"robot seed {seed}: {r['seconds']:.0f} s", file=sys.stderr)
+                    results[name].append(r)
+                    if args.json:
+                        with open(args.json, "w") as f:
+                            json.dump(results, f, indent=1, default=float)
+                    continue
                 r = run_cell(name, seed, config)
                 print(f"{name} seed {seed}: {r['seconds']:.0f} s, stop "
                       f"{r['planner']['stop']['count']}", file=sys.stderr)
@@ -267,7 +360,7 @@ def main(argv=None) -> int:
                     with open(args.json, "w") as f:
                         json.dump(results, f, indent=1, default=float)
     for name, runs in results.items():
-        print("\n".join(report(name, runs)) + "\n")
+        print("\n".join(robot_report(runs) if name == "robot" else report(name, runs)) + "\n")
     return 0
 
 
