@@ -99,7 +99,7 @@ def test_defaults_set_only_the_derived_state_dir():
 
 
 def test_auto_state_dir_follows_ros_home_as_the_node_does(monkeypatch):
-    """A review: the launch file put the state under ~/.ros even with ROS_HOME set, while the
+    """the launch file put the state under ~/.ros even with ROS_HOME set, while the
     node's own ``auto`` uses $ROS_HOME (rcl's rule)."""
     module, values = _values(namespace="cell_a")
     monkeypatch.setenv("ROS_HOME", "/data/ros")

@@ -16,7 +16,7 @@ def single(name="A", seed=0):
 
 
 def test_sound_cells_have_no_blunder_and_one_typo_is_found():
-    """A review: F050's dx typed 1414.1945 for 1441.1945 (27 mm) made the median TRE 4.6x worse
+    """F050's dx typed 1414.1945 for 1441.1945 (27 mm) made the median TRE 4.6x worse
     with no word; its held-out error was 90x the median."""
     for name in ("A", "B"):
         for seed in range(3):
@@ -63,7 +63,7 @@ def test_register_names_the_fiducial_a_model_cannot_be_built_with(tmp_path, caps
 
 
 def test_a_swapped_target_truth_is_named_in_one_warning_line(tmp_path, capsys):
-    """A review: two targets' truth rows swapped gave a TRE of the distance between them with
+    """two targets' truth rows swapped gave a TRE of the distance between them with
     no word; sound targets of every cell stay below the line (also the default RA/B checks)."""
     for name in ("A", "B", "RA"):
         cell, x, y = single(name, 0)
@@ -87,7 +87,7 @@ def test_a_swapped_target_truth_is_named_in_one_warning_line(tmp_path, capsys):
 
 def test_register_warns_of_frames_that_do_not_match_rigidly_and_of_one_scattered_repeat(
         tmp_path, capsys):
-    """A review, stop 31: dz in metres with the rest in mm (FRE 213 mm on a 1 m cell, the
+    """dz in metres with the rest in mm (FRE 213 mm on a 1 m cell, the
     restoration unconverged), and one repeat 5 mm off, were registered without a word."""
     cell, x, y = single("A", 0)
     f = tmp_path / "f.csv"

@@ -97,7 +97,7 @@ def test_a_few_targets_out_of_the_hull_are_no_unit_mismatch(tmp_path, capsys, mm
 @pytest.mark.parametrize("scale, warned", [(1e3, True), (1.0, False)])
 def test_target_truth_in_another_unit_gets_a_warning(tmp_path, capsys, mm_cell, scale, warned):
     """The truth columns of TARGETS.csv (or a bag's targets) were never compared with the
-    fiducials: truth in another unit gave 'median TRE 320 m' without a word (a review)."""
+    fiducials: truth in another unit gave 'median TRE 320 m' without a word."""
     d, cell = mm_cell
     write_targets(tmp_path / "t.csv", cell.target_ids, cell.target_means,
                   cell.target_truth * scale)
@@ -112,7 +112,7 @@ def test_target_truth_in_another_unit_gets_a_warning(tmp_path, capsys, mm_cell, 
 @pytest.mark.parametrize("name", ["my node!", "", "9lives", "a//b", "x" * 256, "a" * 229])
 def test_a_bad_node_name_is_one_clear_line(tmp_path, capsys, command, name):
     """``synth-bag --node-name "my node!"`` wrote a bag whose topics no ROS graph takes (replay
-    then ended in an rclpy traceback; a review): ROS name rules, one line, exit 2."""
+    then ended in an rclpy traceback): ROS name rules, one line, exit 2."""
     args = ["--cell", "RA"] if command == "synth-bag" else []
     with pytest.raises(SystemExit) as done:
         cli.main([command, str(tmp_path / "bag"), *args, "--node-name", name, "--quiet"])
@@ -130,7 +130,7 @@ def test_a_bad_node_name_is_one_clear_line(tmp_path, capsys, command, name):
                                    "both are 'world'"),
 ])
 def test_synth_bag_refuses_a_frame_the_node_refuses(tmp_path, capsys, args, message):
-    """A review: ``synth-bag`` wrote bags with frames '' or 'a b', or both 'world', which the
+    """``synth-bag`` wrote bags with frames '' or 'a b', or both 'world', which the
     node (its frame parameters, the same rule) cannot be started with to replay them."""
     code = 0
     try:
@@ -145,7 +145,7 @@ def test_synth_bag_refuses_a_frame_the_node_refuses(tmp_path, capsys, args, mess
 
 def test_the_longest_node_name_gives_topics_rcl_takes():
     """A 250-character name passed and its replay ended in rclpy's InvalidTopicNameException
-    traceback (topics at most 255 - 8 characters; a review)."""
+    traceback (topics at most 255 - 8 characters)."""
     from rbc_registration.io.bag.records import (MAX_NODE_NAME_LENGTH, Topics, node_name_error,
                                                  topic_name_error)
     name = "a" * MAX_NODE_NAME_LENGTH
@@ -181,7 +181,7 @@ def test_a_named_topic_brings_its_namespace_to_the_topics_not_named(tmp_path):
     (["--fiducial-topic", "/cell_a/reg/fiducial_pairs"], "/cell_a/reg/targets"),
     (["--working-topic", "/tracker/point", "--destination-topic", "/tracker/robot"],
      "/tracker/targets"),
-    # a review, stop 31: /robot_point is in the root, so the two share no namespace; the
+    # /robot_point is in the root, so the two share no namespace; the
     # targets were read from /tracker/targets (absent) and the bag's own lost without a word
     (["--working-topic", "/tracker/point", "--destination-topic", "/robot_point"],
      "/registration_node/targets"),
@@ -197,7 +197,7 @@ def test_topics_not_named_follow_a_namespace_only_when_the_named_ones_share_one(
 
 
 def test_reproduce_onto_a_file_is_one_line_naming_the_option(tmp_path, capsys):
-    """A review, stop 31: `reproduce --out FILE` ended in a bare `[Errno 17] File exists`."""
+    """`reproduce --out FILE` ended in a bare `[Errno 17] File exists`."""
     (tmp_path / "f.csv").write_text("id\n")
     assert cli.main(["reproduce", "--cells", "RA", "--out", str(tmp_path / "f.csv")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

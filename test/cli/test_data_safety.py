@@ -149,7 +149,7 @@ def test_evaluate_json_onto_a_file_of_its_out_dir_is_refused(tmp_path, capsys, f
 
 @pytest.mark.parametrize("sub", ["register", "plan", "plan-figure", "evaluate", "export"])
 def test_an_output_ending_in_a_separator_is_refused(tmp_path, capsys, files, sub):
-    """A review: ``--json out/`` (and ``out/.``) wrote a file named ``out`` (``Path`` drops the
+    """``--json out/`` (and ``out/.``) wrote a file named ``out`` (``Path`` drops the
     separator)."""
     out = str(tmp_path / "out") + (os.sep if sub != "register" else os.sep + ".")
     args = {"register": ["register", str(files["fid"]), "--json", out],

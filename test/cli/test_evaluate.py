@@ -147,14 +147,14 @@ def test_rejections_are_counted_like_the_node(tmp_path):
 
 
 def test_a_rejected_message_or_a_target_does_not_make_a_2d_bag_3d(tmp_path, capsys):
-    """A review: one FiducialPair in another frame (rejected) with z = 0.5 made the RA bag 3D,
+    """one FiducialPair in another frame (rejected) with z = 0.5 made the RA bag 3D,
     then refused as coplanar; so did a target's z."""
     msgs = list(cell_messages(make_cell("RA", seed=0)))
     stray = OutMessage(DEFAULT_TOPICS.fiducial_pairs, "pair", msgs[0].stamp_ns + 1, "camera",
                        (0.1, 0.2, 0.5), "X", "world", (0.1, 0.2, 0.5))
     targets = [m._replace(xyz=m.xyz[:2] + (0.001,)) if m.topic == DEFAULT_TOPICS.targets
                else m for m in msgs]
-    # and one with empty frame ids, which the node takes as its frames (a review)
+    # and one with empty frame ids, which the node takes as its frames
     unframed = [m._replace(frame_id="", destination_frame="") for m in msgs]
     for name, bag_msgs in (("stray", [msgs[0], stray] + msgs[1:]), ("target_z", targets),
                            ("unframed", unframed)):
@@ -254,7 +254,7 @@ def test_evaluate_and_synth_bag_never_import_rclpy(tmp_path):
 
 def test_a_bag_in_millimetres_gets_a_warning(tmp_path, capsys):
     """A bag recorded in mm read as metres: outlier_distance (0.01 m) then cut its repeats and
-    sigma was 0.006 instead of 0.11 (a review), without a word. It is warned about now."""
+    sigma was 0.006 instead of 0.11, without a word. It is warned about now."""
     def mm(m):
         return m._replace(xyz=tuple(1e3 * v for v in m.xyz),
                           destination=tuple(1e3 * v for v in m.destination))
@@ -277,7 +277,7 @@ def test_point_stamps_that_repeat_are_noted(tmp_path, capsys):
 
 def test_exact_duplicate_pairs_are_dropped_with_one_warning(tmp_path, capsys):
     """A bag recorded twice (every FiducialPair again, same id, stamp and points) counted each
-    message as a repeat: sigma halved, or 0 with rho inf for single measurements (a review). The
+    message as a repeat: sigma halved, or 0 with rho inf for single measurements. The
     duplicates are dropped with one warning line naming their count and topic."""
     msgs = list(cell_messages(make_cell("RA", seed=0)))
     pairs = [m for m in msgs if m.topic == DEFAULT_TOPICS.fiducial_pairs]
@@ -296,7 +296,7 @@ def test_exact_duplicate_pairs_are_dropped_with_one_warning(tmp_path, capsys):
 
 
 def test_point_topics_recorded_twice_give_the_model_of_the_bag_recorded_once(tmp_path, capsys):
-    """A review: both point topics recorded twice (each message right after its copy) made
+    """both point topics recorded twice (each message right after its copy) made
     every point one with two candidates within pair_slop: every measurement was refused as
     ambiguous and there was no model. The copies are duplicates, dropped with one line."""
     msgs = list(cell_messages(make_cell("RA", seed=0), points=True))
@@ -348,7 +348,7 @@ def test_unstamped_pairs_are_never_duplicates():
 
 
 def test_warnings_are_in_report_json_and_report_md(tmp_path, capsys):
-    """The warnings went to stderr only (a review): report.json and report.md did not say that
+    """The warnings went to stderr only: report.json and report.md did not say that
     the bag looks like millimetres, or which fiducial stands out. Each is in both now, once."""
     def mm(m):
         return m._replace(xyz=tuple(1e3 * v for v in m.xyz),
@@ -430,7 +430,7 @@ def test_targets_without_truth_get_a_table_of_corrections(tmp_path):
 
 
 def test_targets_without_truth_beside_targets_with_it(tmp_path, capsys):
-    """A review: one target message with a NaN destination dropped the truth of every target
+    """one target message with a NaN destination dropped the truth of every target
     (no TRE at all). Now TRE is computed for the targets with truth, the others are n/a, the
     summary is over those with truth, and one note names the count."""
     cell = make_cell("RA", seed=0)
@@ -464,7 +464,7 @@ def test_targets_without_truth_beside_targets_with_it(tmp_path, capsys):
 
 
 def test_a_reused_out_directory_keeps_no_figure_of_the_earlier_report(tmp_path):
-    """A review: ``--out`` reused for a bag without truth kept the earlier bag's TRE figures
+    """``--out`` reused for a bag without truth kept the earlier bag's TRE figures
     beside the new report. Files that are not the report's own are left alone."""
     cell = make_cell("RA", seed=0)
     write_bag(tmp_path / "truth", cell_messages(cell), progress=False)
@@ -548,7 +548,7 @@ def test_point_mode_sample_is_said_to_be_paired_by_stamps(tmp_path, capsys):
 
 
 def test_outputs_into_the_bag_or_unwritable_are_refused_before_reading(tmp_path, capsys):
-    """A review: --json BAG/x.json wrote into the bag directory, and a --json in a missing
+    """--json BAG/x.json wrote into the bag directory, and a --json in a missing
     directory failed after the whole evaluation with a raw Errno."""
     cell = make_cell("A", seed=0)
     bag = tmp_path / "bag"
@@ -575,7 +575,7 @@ def test_outputs_into_the_bag_or_unwritable_are_refused_before_reading(tmp_path,
 
 
 def test_a_bag_whose_messages_are_mostly_rejected_says_why(tmp_path, capsys):
-    """A review: a points bag whose destination stream came 60 s late lost 99.6 % of its points
+    """a points bag whose destination stream came 60 s late lost 99.6 % of its points
     (the pairing buffer) with warnings: [] and exit 0; now one warning names the share, the
     reasons and the first message (the model is built from the rest, as the node's would be)."""
     msgs = list(cell_messages(make_cell("RA", seed=0)))

@@ -195,7 +195,7 @@ def test_missing_file(tmp_path, capsys):
     assert "cannot be read" in capsys.readouterr().err
 
 
-# --- what each expected error is, units, frames (a review) -------------------------------------
+# --- what each expected error is, units, frames -------------------------------------
 
 @pytest.fixture(scope="module")
 def ra_report(tmp_path_factory):
@@ -213,7 +213,7 @@ def ra_report(tmp_path_factory):
 @pytest.mark.parametrize("registration", ["corrected", "uncorrected"])
 def test_the_file_says_what_the_transform_alone_gives(tmp_path, capsys, ra_report,
                                                       registration):
-    """A review: ``expected_tre`` was kriging's held-out median (0.078 mm) while the file's
+    """``expected_tre`` was kriging's held-out median (0.078 mm) while the file's
     transform alone gives the rigid registration's error at the targets (0.26 mm)."""
     cell, report, data = ra_report
     assert data["decision"]["apply"]
@@ -259,7 +259,7 @@ def test_a_corrected_registration_fitted_to_other_fiducials_has_no_rigid_figure(
 
 @pytest.mark.parametrize("recorded, given", [("m", "mm"), ("mm", "m")])
 def test_a_unit_that_contradicts_the_report_is_refused(tmp_path, capsys, recorded, given):
-    """A review: ``--unit mm`` on a report in metres rescaled it by 1000 without a word."""
+    """``--unit mm`` on a report in metres rescaled it by 1000 without a word."""
     src = tmp_path / "in.json"
     src.write_text(json.dumps({**REPORT, "unit": recorded}))
     assert cli.main(["export", str(src), "--out", str(tmp_path / "x.yaml"), "--unit",
@@ -309,7 +309,7 @@ def test_the_snapshot_unit_and_dimension_are_checked(tmp_path, capsys, node_stat
 
 
 def test_every_export_error_names_the_file(tmp_path, capsys):
-    """A review: a bad field of the decision record (``apply: "yes"``) came without the file."""
+    """a bad field of the decision record (``apply: "yes"``) came without the file."""
     data = json.loads(json.dumps(REPORT))
     data["decision"]["apply"] = "yes"
     src = tmp_path / "in.json"
@@ -321,7 +321,7 @@ def test_every_export_error_names_the_file(tmp_path, capsys):
 
 def test_frames_of_an_evaluate_report_and_the_defaults_of_a_register_report(tmp_path, capsys,
                                                                             ra_report):
-    """A review: an evaluate report recorded no frames, so export used world/tracker without a
+    """an evaluate report recorded no frames, so export used world/tracker without a
     word. The evaluate report records the node's frames its measurements were accepted in; a
     register report (a CSV has no frames) gets the defaults and one warning line saying so."""
     cell, report, _ = ra_report

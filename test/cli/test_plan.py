@@ -150,7 +150,7 @@ def test_targets_are_planned_as_often_measured_as_their_file_says(tmp_path, ra):
 
 
 def test_candidates_in_another_unit_get_a_warning(tmp_path, ra):
-    """Holes in metres against fiducials in mm planned without a word (a review)."""
+    """Holes in metres against fiducials in mm planned without a word."""
     d, cell, _, ids, holes = ra
     write_targets(tmp_path / "m.csv", ids, holes * 1e-3)
     proc = run(d / "fiducials.csv", "--candidates", tmp_path / "m.csv", "--count", "1")

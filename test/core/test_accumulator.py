@@ -124,7 +124,7 @@ def test_long_values_are_quoted_short():
 
 
 def test_an_unknown_id_names_the_known_ones_quoted():
-    """A review: the known ids were listed unquoted ('known: a, b, c' for the ids 'a, b' and
+    """the known ids were listed unquoted ('known: a, b, c' for the ids 'a, b' and
     'c' too) and cut with '...'; now each is quoted and the rest counted."""
     acc = make()
     for k, fid in enumerate(["a, b", "c"] + [f"h{n}" for n in range(25)]):
@@ -387,7 +387,7 @@ def test_evaluate_keeps_every_stamp():
 
 
 def test_points_whose_float_hashes_collide_are_still_other_points():
-    """hash(-1.0) == hash(-2.0): the rule compares the points, not their hashes (a review)."""
+    """hash(-1.0) == hash(-2.0): the rule compares the points, not their hashes."""
     acc = make(outlier_distance=0.0)
     acc.add("a", [-1.0, 0, 0], [1, 1, 1], stamp_s=5.0)
     with pytest.raises(RejectedMeasurement) as caught:
@@ -396,7 +396,7 @@ def test_points_whose_float_hashes_collide_are_still_other_points():
 
 
 def test_an_id_that_was_not_utf8_is_malformed_live_but_kept_on_replay():
-    """A review: rclpy decodes a non-UTF-8 id to U+FFFD characters, so two holes sent as
+    """rclpy decodes a non-UTF-8 id to U+FFFD characters, so two holes sent as
     different invalid bytes became one fiducial (averaged, or one rejected as an outlier)."""
     from rbc_registration.core.accumulator import Measurement
     from rbc_registration.core.records import RejectedMeasurement
@@ -410,7 +410,7 @@ def test_an_id_that_was_not_utf8_is_malformed_live_but_kept_on_replay():
 
 
 def test_a_stamp_whose_nanosec_is_not_below_a_second_is_malformed():
-    """A review: (100 s, 4e9 ns) was read as 104 s and paired or conflicted with other
+    """(100 s, 4e9 ns) was read as 104 s and paired or conflicted with other
     measurements."""
     from rbc_registration.core.measurement_checks import stamp_seconds
     from rbc_registration.core.records import RejectedMeasurement

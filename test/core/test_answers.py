@@ -170,7 +170,7 @@ def test_tetrahedra_without_masks_equal_the_masked_path():
 
 def test_a_thin_cell_the_registration_accepts_is_answered():
     """Fiducials along a beam with 1e-4 off-axis spread: build_model accepts them, and the
-    factor of the bound beyond the fiducials must not refuse them afterwards (a review: every
+    factor of the bound beyond the fiducials must not refuse them afterwards (every
     answer raised 'cannot fix a rigid registration')."""
     from scipy.spatial.transform import Rotation
     rng = np.random.default_rng(0)

@@ -128,7 +128,7 @@ def test_validation_rules():
 
 def _twinned_cell(seed=3, holes=40, bias=0.03, noise=0.005):
     """Holes on a 150 mm grid with a per-hole bias no interpolation can predict; each hole
-    measured twice, once under 'Fnn' and once under 'fnn' (a review's cell)."""
+    measured twice, once under 'Fnn' and once under 'fnn'."""
     rng = np.random.default_rng(seed)
     grid = np.array([[i, k, (i * k) % 3] for i in range(8) for k in range(5)], float)[:holes]
     truth = grid * 150.0
@@ -140,7 +140,7 @@ def _twinned_cell(seed=3, holes=40, bias=0.03, noise=0.005):
 
 
 def test_one_point_under_two_ids_is_held_out_together():
-    """A review: with every hole under two ids, leave-one-out predicted each twin from the other
+    """with every hole under two ids, leave-one-out predicted each twin from the other
     (kriging's held-out error 0.0102 against 0.0772 mm uncorrected) and the cv decision applied
     corrections that made the targets worse. The twins are now one fold."""
     from rbc_registration.core.repeats import describe_twins, twin_groups

@@ -259,7 +259,7 @@ def test_the_bound_holds_for_targets_measured_at_the_fiducials():
 @pytest.mark.parametrize("d", [2, 3])
 def test_the_bound_grows_with_the_distance_beyond_the_fiducials(d):
     """Targets 5 and 20 cell sizes out: the rotation error of the fit grows with the distance,
-    the bound calibrated on held-out fiducials did not (a review: 24 % and 0 % coverage at 5
+    the bound calibrated on held-out fiducials did not (24 % and 0 % coverage at 5
     and 20 cell sizes with a bias, 52 % and 3 % on pure noise, 3D). Inside, nothing changes:
     the factor is 1 as far out as the fiducials reach."""
     rng = np.random.default_rng(7)
@@ -294,7 +294,7 @@ def test_exact_rigid_data_is_not_corrected_on_rounding(d):
 
 def test_a_far_origin_does_not_tie_real_differences():
     """The RA-like cell in metres 5,000 km from the origin (UTM-like): the resolution grows with
-    the coordinates, and 1e-9 of them (5 mm) tied every difference (a review: uncorrected,
+    the coordinates, and 1e-9 of them (5 mm) tied every difference (uncorrected,
     p = 1). Kriging is chosen as at the origin."""
     from rbc_registration.core.synthetic import make_cell
     c = make_cell("RA", 0)
@@ -305,7 +305,7 @@ def test_a_far_origin_does_not_tie_real_differences():
 
 
 def test_a_rho_below_a_threshold_never_prints_as_the_threshold():
-    """rho 2.496 was shown as 2.5 (``.3g``) beside 'uncertain' (a review): the number shown
+    """rho 2.496 was shown as 2.5 (``.3g``) beside 'uncertain': the number shown
     agrees with the verdict, with more digits near a threshold only."""
     from rbc_registration.core.noise import format_against, format_rho
 
@@ -320,7 +320,7 @@ def test_a_rho_below_a_threshold_never_prints_as_the_threshold():
 
 
 def test_the_reason_quotes_its_lengths_in_another_unit():
-    """report.md (mm) quoted the reason's held-out errors in metres (a review)."""
+    """report.md (mm) quoted the reason's held-out errors in metres."""
     w, dst = cell(0, bias=0.3)
     d = build_model(w, dst, ModelConfig(dimension=2)).decision
     base = d.candidate("uncorrected")

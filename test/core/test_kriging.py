@@ -209,7 +209,7 @@ def test_more_fiducials_than_kriging_holds_are_one_clear_refusal(monkeypatch):
 
 
 def _weak_bias_grid(seed, noise=1e-4, bias=0.3e-4):
-    """A review's cell: a jittered 6 x 6 grid over 1 m, a smooth bias 0.3 x the noise, single
+    """A cell: a jittered 6 x 6 grid over 1 m, a smooth bias 0.3 x the noise, single
     measurements (noise RMS over both axes)."""
     rng = np.random.default_rng(seed)
     g = np.linspace(0, 1, 6)
@@ -227,7 +227,7 @@ def _weak_bias_grid(seed, noise=1e-4, bias=0.3e-4):
 
 
 def test_fitted_noise_does_not_collapse_into_a_field_between_neighbours():
-    """A review: with sigma fitted, 16 of these 60 cells got noise ~1e-3 of the truth and a
+    """with sigma fitted, 16 of these 60 cells got noise ~1e-3 of the truth and a
     length scale ~half the spacing (kriging then passed through every fiducial's noise, and the
     decision applied it: targets 1.21-1.40x the uncorrected TRE). The length scale is now at
     least the median neighbour distance when the noise is fitted

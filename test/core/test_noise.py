@@ -55,7 +55,7 @@ def _repeats(seed, n_fiducials=30, n=5, noise=0.02):
 
 
 def test_one_bad_repeat_that_dominates_sigma_is_named():
-    """A review, stop 31: one repeat 5 mm off (within the 48 mm outlier limit) raised sigma 12x
+    """one repeat 5 mm off (within the 48 mm outlier limit) raised sigma 12x
     and turned rho from 4.47 'apply' into 0.52 'do_not_apply', no word."""
     from rbc_registration.core.noise import repeat_stats, scattered_repeats
 
@@ -91,7 +91,7 @@ def test_too_few_repeated_fiducials_or_no_scatter_name_nothing():
 def test_identical_repeats_give_sigma_exactly_zero_and_a_warning():
     """Bit-identical repeats gave sigma 7e-14 mm (np.var's mean of equal values is off by an
     ulp) and rho 9e11 'apply' without a word; now sigma is 0 (the model takes it as unknown)
-    and one line names the cause; with sigma given the line says it is used (a review: it said
+    and one line names the cause; with sigma given the line says it is used (it said
     'taken as unknown')."""
     from rbc_registration.core.noise import identical_repeats, repeat_stats, sigma_from_stats
     rng = np.random.default_rng(4)
@@ -106,7 +106,7 @@ def test_identical_repeats_give_sigma_exactly_zero_and_a_warning():
 
 
 def test_repeats_identical_for_most_fiducials_are_named():
-    """A review: 29 of 30 fiducials with copied repeats and one measured for real gave sigma
+    """29 of 30 fiducials with copied repeats and one measured for real gave sigma
     0.18 of the real one's, rho 5x too high, and no warning. When at least half of the
     fiducials measured more than once have repeats identical to their first measurement, one
     line names them. sigma keeps them (a second review: leaving them out made sigma 45 % too

@@ -24,7 +24,7 @@ def test_pairs_within_slop_either_order():
 
 def test_two_candidates_within_the_slop_are_ambiguous_not_nearest_in_time():
     """Nearest in time won: with two destination points within the slop, the working point was
-    paired with the nearer one silently, the wrong one under a clock offset (a review: 11 of 39
+    paired with the nearer one silently, the wrong one under a clock offset (11 of 39
     measurements mispaired). The point is refused as ambiguous, with the hint."""
     p = StampPairer(slop=0.05)
     p.add_destination([1, 0, 0], "world", 1.00)
@@ -40,7 +40,7 @@ def test_two_candidates_within_the_slop_are_ambiguous_not_nearest_in_time():
 
 @pytest.mark.parametrize("order", ["copies-after-each", "copies-after-both", "copies-late"])
 def test_a_copied_point_is_a_duplicate_not_a_second_candidate(order):
-    """A review: both point topics recorded twice (two recorders) made every destination point
+    """both point topics recorded twice (two recorders) made every destination point
     one with two working points within the slop: every measurement refused as ambiguous. A
     copy (coordinates, frame and stamp) is dropped as a duplicate and pairing goes on."""
     w = [([k, 0, 0], "tracker", 1.0 + k) for k in range(4)]
@@ -77,7 +77,7 @@ def test_a_point_at_a_stamp_seen_before_elsewhere_is_no_duplicate():
 
 
 def test_both_clocks_stepping_back_keep_the_first_pair():
-    """A review: both drivers restarted with new clocks (stamps back from 100 s to 5 s): the
+    """both drivers restarted with new clocks (stamps back from 100 s to 5 s): the
     first working point was dropped at once, its destination partner then refused as ambiguous,
     and the first pair lost. It is buffered now and pairs; if only one driver restarted, the
     other stream's next point drops it as stale."""
@@ -195,7 +195,7 @@ def test_points_slightly_out_of_order_within_the_slop_still_pair():
 
 def test_a_late_point_does_not_cost_the_pairs_after_it():
     """A point late by more than the slop but less than RESTART_AFTER is an ordinary late
-    point: the newer points buffered stay (a review: D1.0, W2.0, W1.0, D2.0 lost W2-D2)."""
+    point: the newer points buffered stay (D1.0, W2.0, W1.0, D2.0 lost W2-D2)."""
     p = StampPairer(slop=0.05)
     pairs = []
     for stream, stamp in [("destination", 1.0), ("working", 2.0), ("working", 1.0),
@@ -214,7 +214,7 @@ def test_discard_drops_one_buffered_point():
 
 def test_repeated_stamps_are_flagged():
     """Stamps that do not tell measurements apart (a driver that stamps 0): pairing goes by
-    arrival order then, and one lost message pairs every later point wrongly (a review: FRE
+    arrival order then, and one lost message pairs every later point wrongly (FRE
     0.13 m, corrections applied). The pairer flags it for the warning."""
     p = StampPairer(slop=0.02)
     assert not p.add_working([0, 0, 0], "t", 0.0).repeated

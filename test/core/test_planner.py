@@ -140,7 +140,7 @@ def test_greedy_updates_agree_with_planning_again_from_scratch(d, corrected):
 
 
 def test_points_are_planned_as_often_measured_as_the_fiducials_were():
-    """A review: fiducials averaged over 200 measurements were planned as if each new fiducial
+    """fiducials averaged over 200 measurements were planned as if each new fiducial
     and each target were measured once; the target's own noise then dominated the expected error
     (4x the truth on a B-like cell) and every suggestion had a negative gain."""
     rng = np.random.default_rng(3)
@@ -181,7 +181,7 @@ def test_a_point_far_outside_the_fiducials_is_refused(where):
 
 @pytest.mark.parametrize("shift", [3.5, 14.0])
 def test_candidates_in_another_frame_or_origin_are_refused(shift):
-    """A review: the holes shifted by `shift` cell sizes (another frame or origin) passed
+    """the holes shifted by `shift` cell sizes (another frame or origin) passed
     check_near, since the candidates set its centre, and were planned with meaningless gains;
     with targets, the (right) targets were the ones refused."""
     rng = np.random.default_rng(6)
@@ -198,7 +198,7 @@ def test_candidates_in_another_frame_or_origin_are_refused(shift):
 
 
 def test_candidates_away_from_a_measured_patch_are_planned():
-    """A review of the rule above: fiducials in a patch of a plate (its centre, a corner), or on
+    """fiducials in a patch of a plate (its centre, a corner), or on
     one of two parallel rails, with candidates only elsewhere on the plate or the other rail,
     are sound plans."""
     em = ExpectedErrorModel.from_axis_std(0.1, 300.0, [0.05, 0.05])
@@ -214,7 +214,7 @@ def test_candidates_away_from_a_measured_patch_are_planned():
 
 
 def test_targets_in_another_unit_are_refused_even_when_they_outnumber_the_rest():
-    """A review: 4 fiducials and 12 candidates in m, 80 targets in mm: the targets set the
+    """4 fiducials and 12 candidates in m, 80 targets in mm: the targets set the
     median of all points, and the plan was served."""
     rng = np.random.default_rng(2)
     x, c = rng.uniform(0, 0.5, (4, 2)), rng.uniform(0, 0.5, (12, 2))
@@ -224,7 +224,7 @@ def test_targets_in_another_unit_are_refused_even_when_they_outnumber_the_rest()
 
 
 def test_a_cell_started_from_a_few_neighbouring_fiducials_is_planned_over_its_plate():
-    """A review: 4 neighbouring corner holes (46 mm) and the other 273 holes as candidates were
+    """4 neighbouring corner holes (46 mm) and the other 273 holes as candidates were
     refused as "far" when the limit was 10 x the fiducials' own size."""
     holes = np.stack(np.meshgrid(np.arange(17) * 25.0, np.arange(21) * 25.0, indexing="ij"),
                      -1).reshape(-1, 2)
@@ -397,7 +397,7 @@ def test_no_enough_while_the_bias_length_scale_is_below_the_fiducial_spacing(d):
                                    "than the fiducials' spacing (2)")
     assert unresolved_bias(x, model(d, length=0.5)) in short.reason
     assert plan(x, c, model(d, length=2.0), config=easy).enough       # resolved: spacing
-    # a fit with sigma unknown stops at the spacing, to rounding (a review: "189.8 is shorter
+    # a fit with sigma unknown stops at the spacing, to rounding ("189.8 is shorter
     # than the spacing 189.8")
     assert unresolved_bias(x, model(d, length=2.0 * (1 - 1e-12))) is None
     tiny = ExpectedErrorModel.from_axis_std(0.01, 0.5, np.full(d, 0.05))   # bias below noise
@@ -553,7 +553,7 @@ def test_no_enough_while_the_decision_is_unsure_whether_to_correct(ra_model):
 
 
 def test_a_decisive_candidate_within_its_noise_is_not_forced_first(ra_model, monkeypatch):
-    """A review: a "decisive" candidate at 0.00065 sigma displaced the best-gain one; below
+    """a "decisive" candidate at 0.00065 sigma displaced the best-gain one; below
     MIN_DECISIVE_Z the plan is greedy from its first suggestion, and still held back."""
     from rbc_registration.core import model_planner
 
@@ -638,7 +638,7 @@ def test_a_far_point_does_not_make_the_fit_look_degenerate(d):
 
 
 def test_candidates_that_look_like_a_mix_up_of_the_files_are_named():
-    """A review: candidate ids that are fiducial ids at another place, and the fiducials file
+    """candidate ids that are fiducial ids at another place, and the fiducials file
     given as the candidates, were planned without a word."""
     holes = grid(6, 0.0, 500.0, 2)
     ids = [f"H{k}" for k in range(len(holes))]

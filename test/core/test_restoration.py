@@ -141,7 +141,7 @@ def test_sigma_l_is_computed_on_first_access_only():
     assert np.isnan(restore_rigid_body(x, y, compute_sigma_l=False).sigma_l).all()
 
 
-# Six 2D fiducials on a line (0.05 mm noise, mm), from a review: CG's first step reported
+# Six 2D fiducials on a line (0.05 mm noise, mm): CG's first step reported
 # success with components off the minimum-norm step, the second then moved a fiducial 173 mm
 # (sigma_L 0.037 -> 45 mm, corrected FRE 92 mm), and that was served.
 COLLINEAR_WORKING = np.array([[0.0, 1.0], [80.0, 161.0], [160.0, 321.0], [240.0, 481.0],

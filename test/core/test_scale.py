@@ -51,7 +51,7 @@ def test_noise_bias_and_flat_cells_are_not_set_up_errors():
 
 
 def test_one_mistyped_target_is_no_unit_mismatch_of_all():
-    """A review: one truth point mistyped (3.4e8 mm) made 'all 8 targets ... unit mismatch'
+    """one truth point mistyped (3.4e8 mm) made 'all 8 targets ... unit mismatch'
     (an RMS over the targets); the median distance leaves it to the per-target blunder line.
     Without a hull (the truth, in the destination frame) the text claims none."""
     rng = np.random.default_rng(2)
@@ -66,7 +66,7 @@ def test_one_mistyped_target_is_no_unit_mismatch_of_all():
 
 
 def test_a_tight_cluster_beside_the_cell_is_no_unit_mismatch():
-    """A review, stop 31: two candidates 1 cm apart, 0.2 m beyond a 0.9 m cell in metres, were
+    """two candidates 1 cm apart, 0.2 m beyond a 0.9 m cell in metres, were
     'likely a unit mismatch (~107x smaller in spread)' and ~/suggest_next refused them. Points
     in a larger unit shrink towards the origin with their spread; these did not."""
     grid = np.stack(np.meshgrid(*[np.linspace(0.0, 0.9, 4)] * 3), axis=-1).reshape(-1, 3)
@@ -88,7 +88,7 @@ def test_a_tight_cluster_beside_the_cell_is_no_unit_mismatch():
 ])
 def test_a_file_whose_cell_size_fits_another_unit_is_named(size, metres_per_unit, unit,
                                                          expected):
-    """A review: register --unit m on a millimetre file exported a transform 1000x off."""
+    """register --unit m on a millimetre file exported a transform 1000x off."""
     from rbc_registration.core.scale import implausible_size
     rng = np.random.default_rng(4)
     points = rng.normal(size=(40, 3))
@@ -102,7 +102,7 @@ def test_a_file_whose_cell_size_fits_another_unit_is_named(size, metres_per_unit
 
 @pytest.mark.parametrize("j", [0, 1])
 def test_no_fiducials_is_one_error_without_numpy_warnings(j):
-    """A review: zero fiducials printed four numpy RuntimeWarnings (the mean of an empty slice in
+    """zero fiducials printed four numpy RuntimeWarnings (the mean of an empty slice in
     frame_mismatch) before the ValueError."""
     import warnings
 
@@ -129,7 +129,7 @@ def test_a_sound_cell_has_no_rigidity_warning():
 
 
 def test_one_axis_in_another_unit_is_named_and_the_unconverged_restoration_too():
-    """A review, stop 31: dz in metres, the rest in mm: FRE 213 mm on a 1 m cell, the corrected
+    """dz in metres, the rest in mm: FRE 213 mm on a 1 m cell, the corrected
     FRE 54 mm (two steps did not restore rigidity), corrections applied, no word."""
     x, y = _cell()
     y[:, 2] /= 1000.0

@@ -171,7 +171,7 @@ def test_empty_sectors_are_empty_and_found():
 
 def test_empty_sectors_far_from_the_cell():
     """A target millions of cells away sees a fiducial along a sector boundary: the margin grows
-    with the target's coordinates, so that sector is not called empty (found in review: with a
+    with the target's coordinates, so that sector is not called empty (with a
     margin of the cell's scale alone the staged weights were [1, 0, ...], the rule's
     [0.5, 0.5, ...])."""
     u = np.array([np.cos(np.pi / 8), np.sin(np.pi / 8)])
@@ -256,7 +256,7 @@ def test_one_target_path_equals_reference(case):
 
 
 def test_one_target_path_with_one_or_two_fiducials():
-    """The query returns scalars for one fiducial (a review): the rule itself answers."""
+    """The query returns scalars for one fiducial: the rule itself answers."""
     for pts in (np.array([[1.0, 2.0]]), np.array([[0.0, 0.0], [1.0, 0.5]])):
         tree = cKDTree(pts)
         for t in (np.array([[0.3, 0.1]]), pts[:1]):

@@ -142,7 +142,7 @@ def test_truncated_bag(tmp_path, bags, storage, fraction):
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_a_fifo_or_directory_in_place_of_a_bag_file_is_refused_not_waited_on(tmp_path, bags,
                                                                           storage):
-    """A review: a FIFO as the storage file (or a single-file bag) blocked open() for ever, a
+    """a FIFO as the storage file (or a single-file bag) blocked open() for ever, a
     FIFO metadata.yaml read as 'no metadata.yaml', a directory as 'disk I/O error'."""
     bag = tmp_path / "fifo"
     shutil.copytree(bags[storage], bag)
@@ -165,7 +165,7 @@ def test_a_fifo_or_directory_in_place_of_a_bag_file_is_refused_not_waited_on(tmp
 
 
 def test_a_topic_renamed_in_metadata_yaml_alone_is_refused_not_lost(tmp_path, bags):
-    """A review: renaming a topic in metadata.yaml (not in the .db3) made rosbags read nothing
+    """renaming a topic in metadata.yaml (not in the .db3) made rosbags read nothing
     of it; the targets vanished with warnings: [] and only a 'messages lost?' note."""
     bag = tmp_path / "renamed"
     shutil.copytree(bags["sqlite3"], bag)
@@ -289,7 +289,7 @@ def test_cli_errors_are_one_clear_line(args, tmp_path, bags, capsys):
 
 def test_a_corrupt_database_page_is_one_bag_error(tmp_path):
     """64 bytes of 0xff in a data page of the .db3: rosbags reads it through apsw, whose
-    CorruptError while iterating is not wrapped (a review: a traceback, exit 1)."""
+    CorruptError while iterating is not wrapped (a traceback, exit 1)."""
     bag = tmp_path / "page"
     write_bag(bag, cell_messages(make_cell("RA", seed=0)), "sqlite3", progress=False)
     f = storage_file(bag)

@@ -319,7 +319,7 @@ def test_numbers_yaml_reads_otherwise_than_they_look_are_refused(tmp_path, writt
     (b"format: \xff\xfe\n", "not UTF-8 text (byte 8)"),
     (b"", "empty (no YAML document): not a calibration file"),
     (b"# only a comment\n", "empty (no YAML document): not a calibration file"),
-    # a review: a bare Python error naming neither file nor field, and an unclear one
+    # a bare Python error naming neither file nor field, and an unclear one
     (b"n_fiducials: " + b"9" * 5000 + b"\n",
      "not valid YAML at line 1, column 14: a number of 5000 characters (at most 4000)"),
     (b"base: &b {x: 1.0, y: 2.0, z: 3.0}\ntranslation: {<<: *b}\n",
@@ -464,7 +464,7 @@ def test_a_version_1_file_is_read_its_expected_tre_as_the_decision_s(tmp_path):
     ("? {a: 1}\n: 1\n", "a key must be a name, got a mapping"),
 ])
 def test_a_key_that_is_a_list_or_a_mapping_is_one_line(tmp_path, extra, message):
-    """A review: such a key was a TypeError traceback (unhashable type: 'list')."""
+    """such a key was a TypeError traceback (unhashable type: 'list')."""
     path = tmp_path / "cal.yaml"
     write_calibration(str(path), make())
     path.write_text(path.read_text() + extra)
@@ -485,7 +485,7 @@ def test_a_key_that_is_a_list_or_a_mapping_is_one_line(tmp_path, extra, message)
 ])
 def test_yaml_1_1_booleans_other_than_true_and_false_are_refused(tmp_path, field, written,
                                                                   message):
-    """A review: ``apply: yes`` was accepted as true (docs/CALIBRATION.md says it is refused),
+    """``apply: yes`` was accepted as true (docs/CALIBRATION.md says it is refused),
     and ``mode: off`` (read as false) got no hint to quote it."""
     path = tmp_path / "cal.yaml"
     write_calibration(str(path), make(decision=Decision("on", "paper", True, "")))

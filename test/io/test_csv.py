@@ -105,7 +105,7 @@ def test_an_input_that_is_not_a_regular_file_is_refused(tmp_path, what, kind):
     ("id,wx,wy,dx,dy\nä,0,0,0,0\n".encode("cp1252"), "not UTF-8 (e.g. Windows-1252 text)"),
 ])
 def test_other_spreadsheet_exports_are_named(tmp_path, content, message):
-    """A review: these were refused as "row 2: 7 fields, the header has 1" or a byte offset."""
+    """these were refused as "row 2: 7 fields, the header has 1" or a byte offset."""
     path = tmp_path / "f.csv"
     path.write_bytes(content)
     with pytest.raises(CsvError, match=re.escape(message)):
@@ -278,7 +278,7 @@ def test_target_repeats_far_apart_are_refused(tmp_path, extra, kind, message):
 
 def test_one_target_id_far_apart_is_refused_by_the_fiducial_spacing(tmp_path):
     """One id (no spacing of the file's own ids): the rows were averaged whatever their
-    distance (a review: 400 mm apart). The fiducials' spacing sets the limit then."""
+    distance (400 mm apart). The fiducials' spacing sets the limit then."""
     path = write(tmp_path, "id,wx,wy,wz\na,500,500,500\na,500,500,900\n")
     fiducials = np.array([[0, 0, 0], [100, 0, 0], [0, 100, 0], [0, 0, 100.0]])
     with pytest.raises(CsvError, match=r"row 3: target 'a': working point is 400 .*0.25 x the "
@@ -338,7 +338,7 @@ def test_rows_of_empty_fields_are_skipped_like_blank_lines(tmp_path):
 
 
 def test_rows_pasted_twice_are_copies_not_repeats(tmp_path):
-    """A review: a file with its rows twice (two exports joined) was read as repeats: sigma
+    """a file with its rows twice (two exports joined) was read as repeats: sigma
     halved, or 0 with rho inf on single measurements. A run of rows that repeats an earlier run
     field by field, in the same order, is dropped as a copy, with one note; real repeats are
     kept."""
@@ -353,7 +353,7 @@ def test_rows_pasted_twice_are_copies_not_repeats(tmp_path):
 
 
 def test_repeats_that_a_rounded_export_makes_equal_are_kept(tmp_path):
-    """A review of the rule above: repeats exported at 0.01 mm with 0.004 mm noise equal an
+    """repeats exported at 0.01 mm with 0.004 mm noise equal an
     earlier row of their id a third of the time; they are measurements, not copies (dropping
     them made sigma 0.00547 instead of 0.0046 mm). Only a run of 8 rows in the same order is a
     copy; and identical rows of one id do not copy themselves."""
@@ -388,7 +388,7 @@ def _plate_file(tmp_path, tilt_working_deg, tilt_destination_deg, name="plate.cs
     (3.0, 0.0, True), (0.0, 2.0, True), (3.0, 3.0, False), (0.0, 0.0, False), (0.2, 0.0, False)])
 def test_a_plate_read_in_2d_whose_z_differs_between_frames_is_named(tmp_path, working,
                                                                     destination, warned):
-    """A review: a plate tilted 3 degrees in one frame, read with --dim 2, was registered
+    """a plate tilted 3 degrees in one frame, read with --dim 2, was registered
     without a word (the non-rigid FRE, ~1 % of the cell, is under the 2 % rule). The ignored z
     now names it when it differs between the frames beyond a constant; the same tilt in both
     frames (xy planes parallel) and a flat plate give no line."""

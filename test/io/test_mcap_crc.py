@@ -223,7 +223,7 @@ def test_a_compression_without_its_library_here_is_left_to_the_reader(tmp_path, 
 
 def test_a_memory_error_of_the_storage_library_is_one_bag_error(tmp_path, monkeypatch):
     """A flipped record length in an mcap without chunks (rosbag2's fastwrite preset: no CRC)
-    makes rosbags' reader ask for a huge buffer (a review found MemoryError escaping)."""
+    makes rosbags' reader ask for a huge buffer (a MemoryError must not escape)."""
     from rosbags.rosbag2 import Reader
 
     bag = tmp_path / "mem"

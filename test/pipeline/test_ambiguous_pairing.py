@@ -100,7 +100,7 @@ def test_a_pair_made_again_is_a_duplicate_and_reported_as_recorded():
 @pytest.mark.parametrize("stamp_ns", [0, 1_700_000_000_000_000_000])
 @pytest.mark.parametrize("grouped", [False, True])
 def test_unstamped_points_of_repeats_are_measurements_not_copies(grouped, stamp_ns):
-    """A review of the copy rule: drivers that leave header.stamp at 0 pair by arrival order,
+    """drivers that leave header.stamp at 0 pair by arrival order,
     and a robot's destination point of a repeat of the same hole is the same, bit for bit. Every
     repeat's destination point was dropped as a 'duplicate' (250 of 375 in cell A with 3
     repeats), and with each hole measured 3 times back to back the waiting working point took the

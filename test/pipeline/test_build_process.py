@@ -124,7 +124,7 @@ def test_a_child_that_dies_twice_raises_naming_how_it_ended(builder, monkeypatch
 
 
 def test_a_result_the_child_cannot_send_back_is_built_in_the_thread(monkeypatch):
-    """A model state pickle cannot write: the child dies no more (a review: 'died twice in a
+    """A model state pickle cannot write: the child dies no more ('died twice in a
     row' on every rebuild, two children and two builds each time, the model never updated)."""
     lines = []
     builder = ProcessBuilder(warn=lines.append)

@@ -120,7 +120,7 @@ def test_torn_last_line_is_skipped_with_a_warning_and_cut_off(tmp_path):
 
 
 def test_a_whole_last_record_without_its_newline_is_kept(tmp_path):
-    """A review: a journal whose final newline was lost (a hand edit, `printf %s "$(cat ...)"`)
+    """a journal whose final newline was lost (a hand edit, `printf %s "$(cat ...)"`)
     had its last, valid record deleted from disk as torn."""
     path = journal_of_two(tmp_path)
     path.write_bytes(path.read_bytes()[:-1])
@@ -316,7 +316,7 @@ def test_a_real_file_size_limit_keeps_exactly_the_accepted_records(tmp_path):
 
 def test_a_failed_archive_leaves_the_journal_open_and_reset_forgets_nothing(tmp_path,
                                                                             monkeypatch):
-    """~/reset with a journal that cannot be moved (a review: an immutable state_dir): the
+    """~/reset with a journal that cannot be moved (an immutable state_dir): the
     journal was closed first and never reopened, so every later pair was dropped with an
     AssertionError no counter showed, and the memory (cleared) and the journal (kept)
     disagreed. Now nothing is forgotten and appends go on."""

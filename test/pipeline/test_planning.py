@@ -92,7 +92,7 @@ def test_suggest_is_the_core_plan_once_the_error_model_is_ready():
 
 
 def test_a_request_in_another_unit_is_refused():
-    """Holes sent in mm to a node in metres were ranked (a review: a 99 % "gain")."""
+    """Holes sent in mm to a node in metres were ranked (a 99 % "gain")."""
     state = grid_state(SETTINGS, xs=(0, .3))
     cand = np.array([[x, y, z] for x in (0.6, 0.9) for y in (0, .3, .6) for z in (0, .2)])
     p = planning_state(state)

@@ -119,7 +119,7 @@ def test_config_file_lists_every_parameter_with_a_valid_value():
      "would be the working frame's origin, which is the registration itself"),
 ])
 def test_a_frame_registered_into_itself_is_refused(values, message):
-    """A review: working_frame == destination_frame started and latched a world -> world
+    """working_frame == destination_frame started and latched a world -> world
     transform on /tf_static, which tf2 drops."""
     with pytest.raises(ValueError, match=message):
         Settings.from_mapping(values)

@@ -1,5 +1,5 @@
 """Until the first model exists the node says why: being built, or the first build failed
-(found by a review, stop 31: after a restart from a large journal every answer said "no
+(after a restart from a large journal every answer said "no
 measurements yet" with 17,331 restored, and a first build that failed said so for good)."""
 
 import threading

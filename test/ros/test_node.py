@@ -243,7 +243,7 @@ class TestLiveRegistration(NodeTestBase):
         assert node.status().n_pending == 0
 
     def test_a_shorter_debounce_period_applies_to_the_pending_batch(self):
-        """A review: with debounce_period 30 s and one pair pending, setting 0.05 s still left
+        """with debounce_period 30 s and one pair pending, setting 0.05 s still left
         the pair out of the model for 28 s (the sleeping thread was not woken)."""
         node = self.make_node(debounce_period=30.0)
         self.stream(node)
@@ -336,7 +336,7 @@ class TestBadInput(NodeTestBase):
         assert answer_key(self.correct(node, target)) == answer_key(good)
 
     def test_a_wild_new_fiducial_is_left_out_named_and_the_node_keeps_its_model(self):
-        """A review: one new pair with a mistyped coordinate (1e7 m) made every later
+        """one new pair with a mistyped coordinate (1e7 m) made every later
         ~/correct_target answer 'no model yet: model not built: fiducials are coplanar'."""
         node = self.make_node()
         self.stream(node)

@@ -269,7 +269,7 @@ def tilted_plate(degrees: float, seed: int = 0) -> dict:
 
 
 class TestDroppedZ(NodeTestBase):
-    """A review: the tilted-plate warning of `register` and `evaluate` (core/scale.
+    """the tilted-plate warning of `register` and `evaluate` (core/scale.
     dropped_z_warning) was not given by the node with dimension 2. It is the model state's
     warning now (the ingestion keeps each fiducial's first 3D points): in ~/status's message
     and /diagnostics WARN; a level plate has none."""

@@ -82,7 +82,7 @@ class TestTfFollowsTheModel(NodeTestBase):
                                    _matrix(model.corrected), atol=1e-12)
 
     def test_a_model_that_becomes_invalid_leaves_tf_static(self):
-        """A review: with fiducials disabled below min_fiducials the node refused to answer
+        """with fiducials disabled below min_fiducials the node refused to answer
         (model_valid false) while /tf_static kept the registration of the excluded fiducials."""
         from rbc_registration_interfaces.srv import SetFiducialEnabled
         node = self.make_node(tf_broadcast="corrected", min_fiducials=4)
@@ -159,7 +159,7 @@ class TestResetDuringARebuild(NodeTestBase):
             self, tmp_path, monkeypatch):
         """~/reset while a new model is being published (its markers take ~40 ms at 3,000
         fiducials): the forgotten model used to reach /tf_static and calibration.json after the
-        reset (a review: 4 and 5 of 5 trials). Here the rebuild is held while its markers are
+        reset (4 and 5 of 5 trials). Here the rebuild is held while its markers are
         built (before it is served and published, since a CI failure of stop 27) until the
         reset has answered."""
         import threading

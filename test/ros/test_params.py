@@ -36,7 +36,7 @@ def test_a_wrong_type_names_the_parameter_and_both_types():
 
 
 def test_a_wrong_type_of_a_parameter_rclpy_declares_names_its_declared_type():
-    """A review: use_sim_time:=1 was refused as "must be of type ?"."""
+    """use_sim_time:=1 was refused as "must be of type ?"."""
     assert params.type_error("use_sim_time", "INTEGER", 1, "BOOL") == (
         "Wrong parameter type: use_sim_time must be of type bool, got integer 1")
     assert params.type_error("use_sim_time", "STRING", "yes", "BOOL") == (
@@ -50,7 +50,7 @@ def test_a_wrong_type_of_a_parameter_rclpy_declares_names_its_declared_type():
 
 
 def test_start_up_overrides_the_node_does_not_have_are_named_with_the_closest_parameter():
-    """A review: -p decison:="'off'" started the node with the decision cv, without a word."""
+    """-p decison:="'off'" started the node with the decision cv, without a word."""
     assert params.unknown_overrides(["decision", "use_sim_time", "qos_overrides./tf.depth"]) == ""
     text = params.unknown_overrides(["decison", "interpolaton", "sigma", "colour"])
     assert text == ("ignored 3 parameter(s) this node does not have: colour, decison (did you "

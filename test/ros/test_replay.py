@@ -216,7 +216,7 @@ def test_a_topic_no_ros_graph_takes_is_one_clear_line(tmp_path, capsys):
 
 
 def test_a_long_gap_in_the_receive_times_is_shortened_to_max_gap_with_one_line():
-    """A review: one message logged 30 days late made replay sleep silently (43 min at
+    """one message logged 30 days late made replay sleep silently (43 min at
     --rate 1000, 30 days at 1)."""
     from rbc_registration.ros.replay import schedule
 

@@ -76,7 +76,7 @@ class TestOneWriterPerStateDir(RosTestBase):
 class TestRuntimeParametersAcrossARestart(RosTestBase):
 
     def test_a_restart_names_the_parameters_set_at_runtime_it_does_not_keep(self, tmp_path):
-        """A review: decision 'off' set at runtime, kill -9, restart: the decision was 'cv'
+        """decision 'off' set at runtime, kill -9, restart: the decision was 'cv'
         again and the answers moved 0.57 mm, the log said only 'restored 80 measurements'.
         ROS parameters come from the start-up ones; the restart now names what changed."""
         state, cell = tmp_path / "state", make_cell(seed=3, repeats=1)
@@ -154,7 +154,7 @@ def test_start_up_failures_are_one_fatal_line(tmp_path, case):
 @pytest.mark.parametrize("content", ["? [a, b]\n: 1\n", "{[1, 2]: x}\n",
                                      "format: rbc_registration_calibration\napply: yes\n"])
 def test_a_malformed_calibration_file_is_one_fatal_line(tmp_path, content):
-    """A review: a calibration_file with a list as a key ended in a 37-line TypeError
+    """a calibration_file with a list as a key ended in a 37-line TypeError
     traceback."""
     path = tmp_path / "cal.yaml"
     path.write_text(content)
@@ -189,7 +189,7 @@ def test_any_other_error_while_starting_is_one_fatal_line(tmp_path):
 
 
 def test_a_malformed_ros_argument_is_one_fatal_line(tmp_path):
-    """A review: ``-p state_dir:=`` (meant as "empty") ended in an rcl traceback."""
+    """``-p state_dir:=`` (meant as "empty") ended in an rcl traceback."""
     proc = start_test_node("rbc_fatal_arg", None, log=open(tmp_path / "node.log", "w"),
                            ros_args=["-p", "state_dir:="])
     try:
@@ -274,14 +274,14 @@ class TestRecomputeDoesNotBlock(RosTestBase):
     (["--ros-args", "--", "-r", "__node:=x"], "registration_node"),
 ])
 def test_start_up_lines_name_the_node_as_remapped(argv, name):
-    """A review: with several nodes in a launch every FATAL start-up line said
+    """with several nodes in a launch every FATAL start-up line said
     ``[registration_node]``, whichever node failed."""
     from rbc_registration.ros.node import startup_logger_name
     assert startup_logger_name(["registration_node", *argv]) == name
 
 
 def test_a_warning_is_logged_again_only_when_its_wording_changes():
-    """A review: the tilted-plate line's numbers move with every new fiducial, so the node logged
+    """the tilted-plate line's numbers move with every new fiducial, so the node logged
     a WARN at every rebuild while measuring. The log compares the lines without their numbers."""
     from rbc_registration.ros.node import _wording
     a = ("read in 2D, the fiducials' xy points are less rigid than the same points with z: "
@@ -289,7 +289,7 @@ def test_a_warning_is_logged_again_only_when_its_wording_changes():
     b = a.replace("0.000415", "0.000431").replace("2.8e-05", "3.1e-05")
     assert _wording(a) == _wording(b) != _wording(a + "; one point under two ids: 'F1', 'F2'")
     assert _wording("") == ""
-    # another fiducial named is another warning, its id quoted or not (a review: the
+    # another fiducial named is another warning, its id quoted or not (the
     # held-out line names it bare, 'fiducial H012: ...'), and an id with a quote in it
     assert _wording("'F17' stands out: 2.5 mm") != _wording("'F18' stands out: 2.5 mm")
     assert _wording("fiducial H012: held-out error 2.5 mm") != _wording(

@@ -90,7 +90,7 @@ class TestTakeSample(NodeTestBase):
         assert node.status().n_rejected_frame == 1 and node.status().n_measurements == 3
 
     def test_a_point_whose_stamp_is_not_a_time_is_rejected_and_counted(self):
-        """A review: a latest point with nanosec >= 1e9 answered "rejected (malformed)" but was
+        """a latest point with nanosec >= 1e9 answered "rejected (malformed)" but was
         not counted in n_rejected_malformed, as every other rejected measurement is."""
         node = self.make_node(point_mode="sample", sample_max_age=60.0)
         self.send(node, "destination_point", self.cell["destination"][0], "world")
@@ -152,7 +152,7 @@ class TestTakeSample(NodeTestBase):
 
     def test_a_sampled_point_is_not_recorded_again_by_its_stamp_partner(self):
         """Pair mode: a working point sampled while buffered was recorded again when its
-        destination partner arrived (a review: two identical measurements of H1)."""
+        destination partner arrived (two identical measurements of H1)."""
         node = self.make_node(sample_max_age=60.0)
         self.send(node, "destination_point", self.cell["destination"][0], "world", stamp=1.0)
         self.send(node, "working_point", self.cell["working"][0], "tracker", stamp=5.0)
