@@ -227,3 +227,38 @@ def test_bad_input_is_one_clear_line(tmp_path, ra, args, message):
     assert message in proc.stderr and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
     assert proc.stderr.startswith("rbc-registration plan: error: ")
+
+
+def test_a_group_column_plans_poses(ra, tmp_path):
+    """CANDIDATES.csv with a group column: a group (a robot pose) is ranked and suggested as a
+    whole; the JSON lists the groups, every candidate carries its group's gain and rank."""
+    d, cell, model, cand_ids, cand = ra
+    cand, cand_ids = cand[:60], cand_ids[:60]
+    labels = [f"p{k // 3}" for k in range(len(cand))]
+    path = tmp_path / "posed.csv"
+    rows = ["id,wx,wy,group"] + [f"{i},{float(x)!r},{float(y)!r},{g}" for i, (x, y), g in
+                                 zip(cand_ids, cand, labels)]
+    path.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "posed.json"
+    proc = run(d / "fiducials.csv", "--candidates", path, "--sigma", "0.11", "--count", "2",
+               "--json", out)
+    p = plan_from_model(model, cand, count=2, groups=labels)
+    rep = json.loads(out.read_text())
+    assert [s["group"] for s in rep["suggestions"]] == [p.unit_labels[u] for u in p.sequence]
+    assert [s["ids"] for s in rep["suggestions"]] == [[cand_ids[c] for c in p.members[u]]
+                                                     for u in p.sequence]
+    np.testing.assert_allclose([s["expected_after"] for s in rep["suggestions"]],
+                               p.expected_after, rtol=1e-9)
+    assert len(rep["groups"]) == 20 and rep["n_candidates"] == 60
+    np.testing.assert_allclose([g["gain"] for g in rep["groups"]], p.gains, rtol=1e-9)
+    for c in rep["candidates"]:
+        g = rep["groups"][int(c["group"][1:])]
+        assert (c["gain"], c["rank"]) == (g["gain"], g["rank"]) and c["id"] in g["ids"]
+    assert rep["error_curve"]["n_fiducials"] == [15, 18, 21]
+    first = p.unit_labels[p.sequence[0]]
+    assert f"group {first}: " in proc.stdout and rep["reason"] == p.reason
+    # one id in two groups is refused, naming the row
+    path.write_text("id,wx,wy,group\nh1,1,2,a\nh1,1,2,b\nh2,5,6,a\n")
+    bad = run(d / "fiducials.csv", "--candidates", path, "--sigma", "0.11", check=False)
+    assert bad.returncode != 0
+    assert "row 3: id 'h1' is in group 'b' here and in group 'a' in an earlier row" in bad.stderr

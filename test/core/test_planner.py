@@ -653,3 +653,53 @@ def test_candidates_that_look_like_a_mix_up_of_the_files_are_named():
                      "e.g. 'again'): measuring one again only averages its noise"]
     same = overlap_notes(fid, fid_ids, fid, fid_ids)           # the fiducials as candidates
     assert len(same) == 1 and same[0].startswith("10 of 10 candidates are at measured fiducials")
+
+
+@pytest.mark.parametrize("d", [2, 3])
+@pytest.mark.parametrize("corrected", [True, False])
+def test_a_group_is_planned_as_its_candidates_measured_together(d, corrected):
+    """Groups (one robot pose measures several candidates): each step's expected error is that
+    of planning again from scratch with every candidate of the chosen groups measured."""
+    rng = np.random.default_rng(21)
+    x, c, t = rng.uniform(0, 4, (8, d)), rng.uniform(0, 4, (24, d)), rng.uniform(0, 4, (6, d))
+    em = ExpectedErrorModel.from_axis_std(0.8, 1.5, np.array([0.05, 0.02, 0.03])[:d], corrected)
+    labels = [f"pose{k % 8}" for k in range(len(c))]          # 8 poses of 3, interleaved
+    p = plan(x, c, em, t, count=4, groups=labels)
+    assert p.unit_labels == tuple(f"pose{k}" for k in range(8))
+    assert p.members == tuple(tuple(range(k, 24, 8)) for k in range(8))
+    assert len(p.gains) == len(p.ranking) == 8
+    for i in range(4):
+        taken = [m for u in p.sequence[:i + 1] for m in p.members[u]]
+        e = expected_squared_errors(np.vstack([x, c[taken]]), t, em)
+        assert pooled_median(e, d) == pytest.approx(p.expected_after[i], rel=1e-9)
+    # each group's gain: measured alone next, all its candidates
+    for u in range(8):
+        e = expected_squared_errors(np.vstack([x, c[list(p.members[u])]]), t, em)
+        assert p.expected_now - pooled_median(e, d) == pytest.approx(p.gains[u], rel=1e-7,
+                                                                     abs=1e-12)
+    assert p.sequence[0] == int(np.argmax(p.gains)) == p.ranking[0]
+    assert p.ranked_candidates == tuple(m for u in p.sequence for m in p.members[u])
+    counts, _ = p.error_curve
+    assert list(counts) == [8, 11, 14, 17, 20]
+    by_gain = plan(x, c, em, t, groups=labels, config=PlanConfig(within=0.0,
+                                                                min_gain_fraction=0.5))
+    assert by_gain.reason.startswith("enough: the best next group "
+                                     f"{p.unit_labels[p.sequence[0]]!r} is expected to reduce")
+
+
+def test_candidates_without_a_group_label_are_their_own_units():
+    rng = np.random.default_rng(4)
+    x, c = rng.uniform(0, 4, (8, 2)), rng.uniform(0, 4, (10, 2))
+    em = model(2)
+    alone = plan(x, c, em, count=3)
+    same = plan(x, c, em, count=3, groups=[""] * len(c))
+    assert same.sequence == alone.sequence and same.unit_labels == ("",) * 10
+    np.testing.assert_allclose(same.gains, alone.gains, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(same.expected_after, alone.expected_after, rtol=1e-9)
+    mixed = plan(x, c, em, count=2, groups=["a", "a"] + [""] * 8)
+    assert mixed.members[0] == (0, 1) and len(mixed.members) == 9
+    with pytest.raises(ValueError, match="got 3 candidate group labels for 10 candidates"):
+        plan(x, c, em, groups=["a", "b", "c"])
+    with pytest.raises(ValueError, match=r"count \(3\) exceeds the number of candidate groups "
+                                         r"\(2\)"):
+        plan(x, c, em, count=3, groups=["a"] * 5 + ["b"] * 5)
