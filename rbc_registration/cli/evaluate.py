@@ -127,9 +127,12 @@ def run(args: argparse.Namespace) -> int:
         targets = None
         if args.targets:
             # Repeats of one id are checked as the bag's recorded targets are: the node's
-            # outlier_distance (metres), so a one-id file is checked too.
-            table = read_targets(args.targets, dim, settings.outlier_distance)
-            targets = Targets(table.ids, table.working, table.destination, str(args.targets))
+            # outlier_distance (metres), so a one-id file is checked too; a session column is
+            # mapped by the fiducials' sessions (read once they are known).
+            def targets(plan: Any, path: Path = args.targets) -> Targets:
+                table = read_targets(path, dim, settings.outlier_distance, sessions=plan)
+                return Targets(table.ids, table.working, table.destination, str(path))
+
             if contents.targets:
                 print(f"targets from {terminal(args.targets)} (the bag's targets topic is ignored)")
         if args.loo:

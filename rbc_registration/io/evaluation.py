@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Callable, NamedTuple, Optional, Sequence
+from typing import Any, Callable, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from ..core.evaluation import leave_one_out, target_errors
 from ..core.mismatch import pairwise_mismatch
 from ..core.noise import format_rho
 from ..core.model import RbcModel
+from ..core.sessions import SessionPlan
 from ..pipeline.offline import evaluate_inputs
 from ..pipeline.settings import Settings
 from ..pipeline.targets import Targets, with_truth
@@ -47,10 +48,15 @@ class Evaluation(NamedTuple):
 
 
 def evaluate_contents(contents: BagContents, settings: Settings,
-                      targets: Optional[Targets] = None, loo: bool = False) -> Evaluation:
-    """Accumulate, build the node's model and make the report (lengths in metres).
+                      targets: Union[Targets, Callable[[Optional[SessionPlan]], Targets],
+                                     None] = None,
+                      loo: bool = False) -> Evaluation:
+    """Accumulate, build the node's model and make the report (lengths in metres); with more
+    than one session the report's ``sessions`` list is ``register``'s
+    (:meth:`~rbc_registration.core.sessions.SessionPlan.to_list`).
 
-    :param targets: targets to report (default: the bag's targets topic, if any).
+    :param targets: targets to report, or a function of the fiducials' session plan giving
+        them (default: the bag's targets topic, if any).
     :raises rbc_registration.pipeline.offline.EvaluationError: when no model can be built (too
         few fiducials, degenerate geometry) or the bag's targets cannot be used.
     """
@@ -62,6 +68,8 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                           targets.working if targets else None,
                           targets.destination if targets else None, loo_err, "m")
     # the frames of the measurements the model was built from (the others were rejected)
+    if ev.fiducials.sessions is not None:
+        report["sessions"] = ev.fiducials.sessions.to_list()
     report["working_frame"] = settings.working_frame
     report["destination_frame"] = settings.destination_frame
     report["bag"] = {"path": str(contents.path), "messages": dict(contents.counts),

@@ -6,7 +6,9 @@ Levels (issue 10 item 6, issue 9):
 
 - ``ERROR``: no model to answer targets (or the journal cannot be written);
 - ``WARN``: an uncertain decision, a fiducial whose held-out error stands out (a likely typo or
-  wrong hole), measurements rejected since the last report, a stale model (accepted
+  wrong hole), a session whose working frame moved (re-stationed, or kept apart; the model
+  state's warning, :func:`~rbc_registration.pipeline.state.session_warning`), measurements
+  rejected since the last report, a stale model (accepted
   measurements waiting longer than ``stale_after`` seconds to enter it), a loaded
   calibration without a live model, or ``use_sim_time`` with no ``/clock`` received (every stamp
   0);
@@ -48,8 +50,8 @@ class HealthInputs(NamedTuple):
     :ivar journal_error: why the journal cannot be written, empty when it can.
     :ivar calibration: what a loaded calibration file published without a live model is
         (publish-only), empty when none.
-    :ivar model_warning: what to check in the served model (a suspect fiducial), empty when
-        nothing.
+    :ivar model_warning: what to check in the served model (a suspect fiducial, a session
+        that moved), empty when nothing.
     :ivar clock_warning: what is wrong with the node's clock (``use_sim_time`` with no ``/clock``
         yet), empty when nothing.
     """

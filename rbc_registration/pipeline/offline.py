@@ -10,7 +10,7 @@ No rclpy, no message packages. Lengths in metres as recorded (REP 103).
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, NamedTuple, Optional, Sequence, Union
+from typing import Any, Callable, Mapping, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +21,7 @@ from ..core.constants import WORKING
 from ..core.model import RbcModel
 from ..core.pairing import StampPairer
 from ..core.records import RejectedMeasurement, quote
+from ..core.sessions import SessionPlan
 from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
 from .settings import SPECS, Settings
@@ -38,7 +39,7 @@ class Accumulated(NamedTuple):
     """The fiducials after ingestion, rejections by reason, the log lines of the rejections,
     the warnings about point stamps that repeat, the first rejection's message by reason, and in
     2D the warning for z that differ between the frames (:meth:`.ingest.Ingest.
-    dropped_z_warning`, "" when none)."""
+    dropped_z_warning`, "" when none), and the sessions the measurements were in."""
 
     fiducials: FiducialSet
     rejected: dict[str, int]
@@ -46,6 +47,7 @@ class Accumulated(NamedTuple):
     stamp_warnings: tuple[str, ...]
     first_rejections: dict[str, str]
     dropped_z: str = ""
+    session_names: tuple[str, ...] = ()
 
 
 class OfflineModel(NamedTuple):
@@ -138,21 +140,33 @@ def accumulate(inputs: Sequence[Input], settings: Settings) -> Accumulated:
             ingest.point(m.stream, m.xyz, m.frame_id, m.stamp_s)
     return Accumulated(ingest.fiducial_set(), dict(acc.rejected), tuple(log.lines),
                        tuple(ingest.stamp_warnings.values()), dict(ingest.first_rejections),
-                       ingest.dropped_z_warning())
+                       ingest.dropped_z_warning(), acc.sessions.names)
 
 
 def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
-                     source: str = "input") -> Optional[Targets]:
+                     source: str = "input", sessions: Optional[SessionPlan] = None,
+                     session_names: Sequence[str] = ()) -> Optional[Targets]:
     """Targets from recorded ``FiducialPair`` targets, repeats of an id averaged (first-seen
     order); the truth of an id is the mean of its messages with a finite destination point, a
     row of NaN when it has none, and ``None`` when no target has truth.
 
+    Sessions follow the rule of TARGETS.csv's ``session`` column: a message's ``session``
+    names the session its working point was measured in, an empty one continues the previous
+    target message's (the first ones: the reference session); points of a moved session are
+    mapped into the reference's frame (``sessions``, the fiducials' plan) before they are
+    checked and averaged.
+
     :param source: names the data in error messages (e.g. the bag's path); every message also
         names the target's id and the target message's number (from 1, in bag order).
+    :param sessions: the fiducials' session plan (:attr:`FiducialSet.sessions`); ``None``: one
+        session, every target in it.
+    :param session_names: the sessions the fiducials were measured in (with one session, a
+        target may name it).
 
     :raises EvaluationError: for a target in another frame than the node's, a non-finite
-        working point, or a repeat farther than ``outlier_distance`` from the mean of its id's
-        earlier messages in either frame (:func:`.targets.first_conflict`).
+        working point, a repeat farther than ``outlier_distance`` from the mean of its id's
+        earlier messages in either frame (:func:`.targets.first_conflict`), or a session the
+        fiducials do not have or kept apart.
     """
     if not targets:
         return None
@@ -173,6 +187,10 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
     if bad.size:
         raise EvaluationError(f"{which(int(bad[0]))}: working point has NaN or inf "
                               f"({bad.size} such target message(s))")
+    labels = target_sessions(targets, sessions, session_names, which)
+    if labels:
+        moved, _ = sessions.apply(work, labels)
+        work = [tuple(p) for p in moved.tolist()]
     limit = settings.outlier_distance
     known_rows = np.flatnonzero(with_truth(dest, len(dest)))
     for rows, name, points in ((range(len(ids)), "working", work),
@@ -192,6 +210,38 @@ def recorded_targets(targets: Sequence[PairMessage], settings: Settings,
     return Targets(unique, working, truth, "bag")
 
 
+def target_sessions(targets: Sequence[PairMessage], plan: Optional[SessionPlan],
+                    names: Sequence[str], which: Callable[[int], str]) -> list[str]:
+    """Each target message's session (:func:`recorded_targets`); [] when the fiducials have one
+    session (``plan`` ``None``), whose name (``names``) a target may give.
+
+    :raises EvaluationError: a session the fiducials do not have, or one kept apart.
+    """
+    if plan is None:
+        for k, m in enumerate(targets):
+            if m.session and m.session not in names:
+                raise EvaluationError(f"{which(k)}: session {m.session!r} is not the "
+                                      f"fiducials' session "
+                                      f"({', '.join(map(repr, names)) or 'none'})")
+        return []
+    out, session = [], plan.reference
+    for k, m in enumerate(targets):
+        session = m.session or session
+        try:
+            motion = plan.motion(session)
+        except KeyError:
+            raise EvaluationError(f"{which(k)}: session {session!r} is not among the "
+                                  f"fiducials' sessions "
+                                  f"({', '.join(repr(m.session) for m in plan.motions)})"
+                                  ) from None
+        if motion.kept_apart:
+            raise EvaluationError(f"{which(k)}: session {session!r} was kept apart (too few "
+                                  "fiducials in common with the others): its targets cannot "
+                                  "be placed")
+        out.append(session)
+    return out
+
+
 def truth_note(ids: Sequence[str], destination: Optional[NDArray[np.float64]]) -> str:
     """The note on targets without truth ("" when every target has truth).
 
@@ -208,11 +258,15 @@ def truth_note(ids: Sequence[str], destination: Optional[NDArray[np.float64]]) -
 
 
 def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
-                    recorded: Sequence[PairMessage] = (), targets: Optional[Targets] = None,
+                    recorded: Sequence[PairMessage] = (),
+                    targets: Union[Targets, Callable[[Optional[SessionPlan]], Targets],
+                                   None] = None,
                     source: str = "input") -> OfflineModel:
     """Accumulate ``inputs`` and build the node's model; the targets to report are ``targets``
     or else the ``recorded`` ones (if any).
 
+    :param targets: the targets, or a function of the fiducials' session plan giving them
+        (a TARGETS.csv with a ``session`` column, mapped into the reference session's frame).
     :param source: names the data in error messages (e.g. the bag's path).
     :raises EvaluationError: when no model can be built (too few fiducials, degenerate
         geometry), naming ``source`` and the first rejection.
@@ -230,8 +284,11 @@ def evaluate_inputs(inputs: Sequence[Input], settings: Settings,
         raise EvaluationError(f"{source}: no model: {state.error}"
                               + (f" ({sum(acc.rejected.values())} measurement(s) rejected, e.g. "
                                  f"{acc.log_lines[0]})" if acc.log_lines else ""))
+    if callable(targets):
+        targets = targets(acc.fiducials.sessions)
     if targets is None:
-        targets = recorded_targets(recorded, settings, source)
+        targets = recorded_targets(recorded, settings, source, acc.fiducials.sessions,
+                                   acc.session_names)
     note = truth_note(targets.ids, targets.destination) if targets is not None else ""
     notes = (note,) if note else ()
     notes += acc.stamp_warnings

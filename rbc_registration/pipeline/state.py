@@ -13,6 +13,7 @@ from ..core.accumulator import FiducialSet
 from ..core.evaluation import describe_misfits, gross_misfits
 from ..core.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
+from ..core.session_sums import AUTO_SESSION_PREFIX
 from ..core.warnings import model_warnings
 from .settings import Settings
 
@@ -120,14 +121,20 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
 
 def session_warning(fiducials: FiducialSet) -> str:
     """The sessions' line of :attr:`ModelState.warning`: the sessions moved (re-stationed) and
-    kept apart (:meth:`~rbc_registration.core.sessions.SessionPlan.warning`, metres), and when
-    each session starts (the stamp of its first measurement); "" with one session or nothing
-    to say."""
+    kept apart (:meth:`~rbc_registration.core.sessions.SessionPlan.warning`, metres), the
+    sessions the node opened on a move it detected (``auto-N``, :mod:`~rbc_registration.core.
+    session_sums`), and when each session starts (the stamp of its first measurement); "" with
+    one session or nothing to say."""
     plan = fiducials.sessions
     if plan is None or not plan.warning():
         return ""
-    when = ", ".join(f"{s!r} at {t:.3f} s" for s, t in fiducials.session_starts)
-    return plan.warning("m") + (f" (sessions start at stamp {when})" if when else "")
+    starts = fiducials.session_starts
+    when = ", ".join(f"{s!r} at {t:.3f} s" for s, t in starts)
+    live = [f"{s!r} at stamp {t:.3f} s" for s, t in starts if s.startswith(AUTO_SESSION_PREFIX)]
+    detected = (f"; the node detected a move of the working frame and opened session(s) "
+                f"{', '.join(live)}" if live else "")
+    return (plan.warning("m") + detected
+            + (f" (sessions start at stamp {when})" if when else ""))
 
 
 def with_warning(state: ModelState, line: str) -> ModelState:
