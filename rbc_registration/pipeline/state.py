@@ -85,8 +85,8 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
     n = len(fiducials.ids)
     if n < settings.min_fiducials:
         return ModelState(None, fiducials, settings,
-                          f"{n} enabled fiducials, need min_fiducials={settings.min_fiducials}",
-                          stamp_ns)
+                          f"{n} enabled fiducials, need min_fiducials={settings.min_fiducials}"
+                          + _kept_apart_hint(fiducials), stamp_ns)
     left_out = ""
     try:
         model = _build(fiducials, settings, previous)
@@ -135,6 +135,18 @@ def session_warning(fiducials: FiducialSet) -> str:
                 f"{', '.join(live)}" if live else "")
     return (plan.warning("m") + detected
             + (f" (sessions start at stamp {when})" if when else ""))
+
+
+def _kept_apart_hint(fiducials: FiducialSet) -> str:
+    """Why a model of the current session has few fiducials: the other sessions kept apart
+    (the current session shares too few fiducials with them), and what to measure; "" else."""
+    plan = fiducials.sessions
+    if plan is None or not plan.kept_apart:
+        return ""
+    d = fiducials.working.shape[1]
+    return (f" in session {plan.reference!r}; {plan.warning('m')}: measure at least {d + 1} "
+            f"fiducials of the earlier sessions again (not on one line) in session "
+            f"{plan.reference!r} to re-station them")
 
 
 def with_warning(state: ModelState, line: str) -> ModelState:
