@@ -3,12 +3,13 @@ part of it and every target measured again. Streamed once with the sessions decl
 ``FiducialPair.session`` and once undeclared with a move well beyond the noise (the node opens
 ``auto-1`` itself): ``~/status`` and ``/diagnostics`` WARN naming the move and when, and
 ``~/correct_target`` answers (targets in the current session) equal the offline pipeline's on
-the same data.
+the same data. ``~/take_sample`` takes a group.
 
 DDS stays on loopback: test/conftest.py sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a
 per-process ROS_DOMAIN_ID, which the node process inherits.
 """
 
+import json
 import os
 
 import numpy as np
@@ -18,9 +19,9 @@ rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("rbc_registration_interfaces.msg")
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
-from geometry_msgs.msg import Point  # noqa: E402
+from geometry_msgs.msg import Point, PointStamped  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus  # noqa: E402
-from rbc_registration_interfaces.srv import CorrectTarget  # noqa: E402
+from rbc_registration_interfaces.srv import CorrectTarget, TakeSample  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
@@ -32,6 +33,7 @@ from rbc_registration.pipeline.offline import evaluate_inputs, settings_for  # n
 from rbc_registration.ros.services import rebuild_requested_ns  # noqa: E402
 from ros_helpers import (point_xyz, start_test_node, stop_process, target_msg,  # noqa: E402
                          wait_for)
+from test_node import NodeTestBase  # noqa: E402
 
 pytestmark = pytest.mark.ros
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -133,3 +135,42 @@ def test_two_sessions_warn_and_answer_as_offline(tmp_path, ros_harness, move_sig
         np.testing.assert_allclose(point_xyz(a.destination.point), tc.destination[k], atol=1e-9)
         np.testing.assert_allclose(point_xyz(a.corrected.point), tc.corrected[k], atol=1e-9)
         np.testing.assert_allclose(point_xyz(a.uncorrected.point), tc.uncorrected[k], atol=1e-9)
+
+
+class TestTakeSampleGroup(NodeTestBase):
+    """``~/take_sample`` takes ``group`` (in-process node, topic source): the sample and its
+    journal record carry it, the model gets it, and another group for the fiducial is a
+    conflict."""
+
+    def send(self, node, topic, xyz, frame):
+        pub = self.publisher(node, PointStamped, topic)
+        before = node._samples._latest.get(topic.split("_")[0])
+        msg = PointStamped()
+        msg.header.frame_id = frame
+        msg.point.x, msg.point.y, msg.point.z = (float(v) for v in xyz)
+        pub.publish(msg)
+        wait_for(lambda: node._samples._latest.get(topic.split("_")[0]) is not before,
+                 what=f"{topic} received")
+        self.ros.client.destroy_publisher(pub)
+
+    def take(self, node, fiducial_id, group):
+        return self.srv(node, TakeSample, "take_sample",
+                        TakeSample.Request(fiducial_id=fiducial_id, group=group))
+
+    def test_a_sample_carries_its_group(self, tmp_path):
+        node = self.make_node(state_dir=str(tmp_path), point_mode="sample", sample_max_age=60.0)
+        cell = self.cell
+        self.send(node, "destination_point", cell["destination"][0], "world")
+        self.send(node, "working_point", cell["working"][0], "tracker")
+        r = self.take(node, "H00", "pose1")
+        assert r.success, r.message
+        assert r.pair.group == "pose1" and r.pair.session == ""
+        record = json.loads((tmp_path / "journal.jsonl").read_text().splitlines()[-1])
+        assert record["id"] == "H00" and record["g"] == "pose1" and "se" not in record
+        self.send(node, "working_point", cell["working"][0] + 1e-5, "tracker")
+        r = self.take(node, "H00", "pose2")
+        assert not r.success and "rejected (conflict)" in r.message
+        assert "fiducial 'H00' is in group 'pose1', this measurement says group 'pose2'" \
+            in r.message
+        assert node.status().n_rejected_conflict == 1 and node.status().n_measurements == 1
+        assert node._ingest.fiducial_set().groups == ("pose1",)
