@@ -256,6 +256,13 @@ class TestTargetFrames(NodeTestBase):
         bad = node.set_parameters([Parameter("target_frames", Parameter.Type.STRING_ARRAY,
                                              ["peg_d:1,2"])])
         assert not bad[0].successful and "must be NAME:X,Y,Z" in bad[0].reason
+        assert set(self.frames(self.late_tf(node))) == {"tracker", "peg_c"}   # kept
+        cleared = node.set_parameters([Parameter("target_frames", Parameter.Type.STRING_ARRAY,
+                                                 [])])
+        assert cleared[0].successful, cleared[0].reason
+        assert set(self.frames(self.late_tf(node))) == {"tracker"}
+        node.set_parameters([Parameter("target_frames", Parameter.Type.STRING_ARRAY,
+                                       self.entries(["peg_c"]))])
 
         assert self.srv(node, Trigger, "reset").success
         wait_for(lambda: not self.frames(self.late_tf(node)), what="an empty /tf_static")
