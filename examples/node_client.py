@@ -20,6 +20,7 @@ answer or refuses a target.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from typing import Any
@@ -91,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         node.create_subscription(RegistrationStatus, f"{args.node}/status", status.append, latched)
         publisher = node.create_publisher(FiducialPair, f"{args.node}/fiducial_pairs",
-                                          QoSProfile(depth=len(pairs),
+                                          QoSProfile(depth=max(1, len(pairs)),
                                                      reliability=ReliabilityPolicy.RELIABLE))
         deadline = time.monotonic() + WAIT_S
         while (pairs and publisher.get_subscription_count() == 0) or not status:
@@ -154,4 +155,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        status = main()
+        sys.stdout.flush()
+    except BrokenPipeError:       # `... | head`: end quietly, as Unix tools do (128 + SIGPIPE)
+        sys.stdout = open(os.devnull, "w")
+        status = 141
+    raise SystemExit(status)
