@@ -54,7 +54,8 @@ NOT_RUN = {
     "bash scripts/test.sh": "the test suite itself",
     "scripts/bootstrap.sh": "builds the venv these tests run in",
     "scripts/test.sh [pytest args]": "the test suite itself",
-    "source scripts/env.sh": None,   # performed: see _source_env
+    "source scripts/env.sh": None,   # performed: see Session.do_env
+    "export ROS_DOMAIN_ID=7": "the test process's own ROS domain (test/conftest.py) stands in",
     # docs/BUILD.md: a colcon workspace and a pip venv of one's own, outside this checkout.
     "mkdir -p ~/rbc_ws/src && cd ~/rbc_ws/src": "a colcon workspace outside the checkout",
     "git clone <this repository> rbc_registration": "a colcon workspace outside the checkout",
@@ -567,10 +568,18 @@ def test_cli_md_json_tables_name_the_keys_the_reports_have(tmp_path):
         named = _table_keys(sections["register"], header)
         assert keys == named, f"{key}: undocumented {keys - named}, absent {named - keys}"
 
-    plan = _report(tmp_path, "plan", str(cell / "fiducials.csv"), "--candidates",
-                   str(cell / "candidates.csv"))
+    # plan, once with the candidates alone and once in groups of two (a group column)
+    rows = (cell / "candidates.csv").read_text(encoding="utf-8").splitlines()
+    grouped = tmp_path / "grouped.csv"
+    grouped.write_text("\n".join([rows[0] + ",group"] + [f"{r},P{k // 2}"
+                                                         for k, r in enumerate(rows[1:])]),
+                       encoding="utf-8")
+    keys = set()
+    for candidates in (cell / "candidates.csv", grouped):
+        keys |= set(_report(tmp_path, "plan", str(cell / "fiducials.csv"), "--candidates",
+                            str(candidates)))
     named = _table_keys(sections["plan"], "`plan --json` keys:")
-    assert set(plan) == named, f"undocumented {set(plan) - named}, absent {named - set(plan)}"
+    assert keys == named, f"undocumented {keys - named}, absent {named - keys}"
 
 
 def _printed(*argv: str) -> list[str]:
