@@ -171,3 +171,47 @@ def test_a_target_in_an_unknown_session_is_refused_in_one_line(cell, tmp_path, c
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
     assert "session 'lunch' is not among the fiducials' sessions ('s1', 's2')" in err[0]
+
+
+def _write_legacy(path: Path, messages) -> None:
+    """A bag of FiducialPair recorded with the definition without group and session."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from rbc_registration.io.bag.reader import legacy_typestore
+    from rbc_registration.io.bag.records import FIDUCIAL_PAIR
+
+    store = legacy_typestore()
+    t = store.types
+    conns = {}
+    with Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3) as writer:
+        for m in messages:
+            if m.topic not in conns:
+                conns[m.topic] = writer.add_connection(m.topic, FIDUCIAL_PAIR, typestore=store)
+            header = t["std_msgs/msg/Header"](
+                stamp=t["builtin_interfaces/msg/Time"](sec=m.stamp_ns // 10**9,
+                                                       nanosec=m.stamp_ns % 10**9),
+                frame_id=m.frame_id)
+            point = t["geometry_msgs/msg/Point"]
+            msg = t[FIDUCIAL_PAIR](header=header, fiducial_id=m.fiducial_id,
+                                   working_point=point(*m.xyz),
+                                   destination_frame_id=m.destination_frame,
+                                   destination_point=point(*m.destination))
+            writer.write(conns[m.topic], m.stamp_ns, store.serialize_cdr(msg, FIDUCIAL_PAIR))
+
+
+def test_a_bag_recorded_without_group_and_session_is_read_with_a_note(cell, tmp_path):
+    """The earlier FiducialPair (no group, no session): read as empty fields, the same model
+    as the bag of today's definition with empty fields (the bump rule still applies)."""
+    from rbc_registration.io.bag.reader import read_bag
+
+    plain = [m._replace(session="") for m in _messages(cell)]
+    _write_legacy(tmp_path / "old", plain)
+    write_bag(tmp_path / "new", plain, "sqlite3", progress=False)
+    old, new = read_bag(tmp_path / "old", progress=False), read_bag(tmp_path / "new",
+                                                                    progress=False)
+    assert old.inputs == new.inputs and old.targets == new.targets
+    assert [n for n in old.notes if "without group and session: read as empty" in n]
+    assert not new.notes
+    a = _json(["evaluate", str(tmp_path / "old"), "--quiet"], tmp_path / "a.json")
+    b = _json(["evaluate", str(tmp_path / "new"), "--quiet"], tmp_path / "b.json")
+    assert a["targets"] == b["targets"] and a["fiducials"] == b["fiducials"]

@@ -3,6 +3,10 @@
 
 Every problem with a bag (missing, malformed, truncated, an unknown topic, a type without a
 definition) raises :class:`~.records.BagError` with a message naming the bag and what was wrong.
+
+A ``FiducialPair`` topic recorded with the definition without ``group`` and ``session``
+(:data:`LEGACY_FIDUCIAL_PAIR`) is read too: every fiducial its own group, every measurement in
+the current session, and a note says so.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from typing import Any, Callable, Iterator, Optional, Sequence, Union
 
 from rosbags.rosbag2 import Reader, ReaderError
 from rosbags.serde import SerdeError
-from rosbags.typesys import TypesysError
+from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
 from ...core.constants import DESTINATION, WORKING
 from ...core.measurement_checks import stamp_seconds
@@ -28,6 +32,42 @@ from .mcap_crc import check_mcap, storage_files
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
 from .typestore import check_definitions, make_typestore
+
+#: ``FiducialPair`` without ``group`` and ``session``, as bags recorded before those fields hold
+#: it (the fields alone decide the type's hash and its CDR).
+LEGACY_FIDUCIAL_PAIR = """std_msgs/Header header
+string fiducial_id
+geometry_msgs/Point working_point
+string destination_frame_id
+geometry_msgs/Point destination_point
+"""
+
+
+def legacy_typestore() -> Any:
+    """A typestore whose ``FiducialPair`` is :data:`LEGACY_FIDUCIAL_PAIR`."""
+    store = get_typestore(Stores.ROS2_KILTED)
+    store.register(get_types_from_msg(LEGACY_FIDUCIAL_PAIR, FIDUCIAL_PAIR))
+    return store
+
+
+def _legacy_topics(reader: Reader, topics: Sequence[str], legacy: Any) -> list[str]:
+    """The ``FiducialPair`` topics of ``topics`` whose every connection was recorded with
+    :data:`LEGACY_FIDUCIAL_PAIR`: by its hash, or without a hash by the definition the bag
+    carries (its own fields, before the dependencies' ``===`` blocks)."""
+    digest = legacy.hash_rihs01(FIDUCIAL_PAIR)
+    verdict: dict[str, bool] = {}
+    for conn in reader.connections:
+        if conn.topic not in topics or conn.msgtype != FIDUCIAL_PAIR:
+            continue
+        if conn.digest:
+            old = conn.digest == digest
+        else:
+            own = (conn.msgdef.data or "").split("\n===")[0]
+            fields = {line.split()[1] for line in own.splitlines()
+                      if len(line.split()) >= 2 and not line.lstrip().startswith("#")}
+            old = bool(own.strip()) and not {"group", "session"} & fields
+        verdict[conn.topic] = verdict.get(conn.topic, True) and old
+    return [t for t, old in verdict.items() if old]
 
 try:        # rosbags reads .db3 files through apsw where it is installed (its errors while
     import apsw     # iterating are not wrapped); the standard library's sqlite3 otherwise
@@ -194,7 +234,9 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                            f"(topics in the bag: {listing}); name them with --fiducial-topic, "
                            "--working-topic, --destination-topic")
         wanted = [t for t in expected if t in types]
-        check_definitions(reader, store, wanted)
+        legacy_store = legacy_typestore()
+        legacy = _legacy_topics(reader, wanted, legacy_store)
+        check_definitions(reader, store, [t for t in wanted if t not in legacy])
         conns = [c for c in reader.connections if c.topic in wanted]
         bar = Progress(f"reading {Path(path).name}", sum(c.msgcount for c in conns),
                        enabled=progress)
@@ -206,7 +248,8 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
             for conn, log_ns, raw in reader.messages(conns):
                 k += 1
                 try:
-                    msg = store.deserialize_cdr(raw, conn.msgtype)
+                    msg = (legacy_store if conn.topic in legacy else store).deserialize_cdr(
+                        raw, conn.msgtype)
                 except Exception as exc:  # noqa: BLE001 - any decoding failure of bag data
                     raise BagError(f"bag {path}: message {k} on {conn.topic} cannot be decoded "
                                    f"as {conn.msgtype}: {_describe(exc)}") from None
@@ -216,8 +259,8 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                     pair = PairMessage(log_ns, stamp, msg.fiducial_id,
                                        _xyz(msg.working_point), msg.header.frame_id,
                                        _xyz(msg.destination_point), msg.destination_frame_id,
-                                       _stamp_ns(msg.header), stamp_error, msg.group,
-                                       msg.session)
+                                       _stamp_ns(msg.header), stamp_error,
+                                       getattr(msg, "group", ""), getattr(msg, "session", ""))
                     (ins if conn.topic == topics.fiducial_pairs else tgts).append(pair)
                 else:
                     stream = WORKING if conn.topic == topics.working_point else DESTINATION
@@ -240,6 +283,9 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                        f"{' (no messages)' if missing in types else ''}: points cannot be "
                        "paired")
     notes = tuple(f"bag {path}: {t}: no messages (ignored)" for t in empty)
+    notes += tuple(f"bag {path}: {t} was recorded with a FiducialPair without group and "
+                   "session: read as empty (every fiducial its own group, every measurement in "
+                   "the current session)" for t in legacy if counts.get(t))
     other = {t: ty for t, ty in types.items() if t not in expected}
     return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other,
                        count_mismatches(path, conns, counts), notes)
