@@ -3,7 +3,7 @@ part of it and every target measured again. Streamed once with the sessions decl
 ``FiducialPair.session`` and once undeclared with a move well beyond the noise (the node opens
 ``auto-1`` itself): ``~/status`` and ``/diagnostics`` WARN naming the move and when, and
 ``~/correct_target`` answers (targets in the current session) equal the offline pipeline's on
-the same data. ``~/take_sample`` takes a group.
+the same data, before and after a restart from the journal. ``~/take_sample`` takes a group.
 
 DDS stays on loopback: test/conftest.py sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a
 per-process ROS_DOMAIN_ID, which the node process inherits.
@@ -85,8 +85,9 @@ def test_two_sessions_warn_and_answer_as_offline(tmp_path, ros_harness, move_sig
     statuses, diagnostics = [], []
     client.create_subscription(RegistrationStatus, f"/{name}/status", statuses.append, LATCHED)
     client.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 100)
+    state_dir = str(tmp_path / "state")
     with open(tmp_path / "node.log", "w") as log:
-        node = start_test_node(name, log=log, **FRAMES)
+        node = start_test_node(name, state_dir=state_dir, log=log, **FRAMES)
         try:
             pub = client.create_publisher(FiducialPair, f"/{name}/fiducial_pairs", 1000)
             wait_for(lambda: pub.get_subscription_count() > 0, 30, "the node's subscription")
@@ -113,8 +114,23 @@ def test_two_sessions_warn_and_answer_as_offline(tmp_path, ros_harness, move_sig
                     if s.name == mine and "re-stationed" in s.message][-1]
         finally:
             assert stop_process(node) == 0, (tmp_path / "node.log").read_text()
-
     off = _offline(sc, working, destination, labelled)
+
+    # a restart from the journal finds the same sessions (declared, or the bump again)
+    statuses.clear()
+    with open(tmp_path / "restart.log", "w") as log:
+        node = start_test_node(name, state_dir=state_dir, log=log, **FRAMES)
+        try:
+            wait_for(lambda: statuses and statuses[-1].model_valid
+                     and statuses[-1].n_measurements == n
+                     and off.warning in statuses[-1].message, 120,
+                     "the restarted node's model with the sessions' warning")
+            again = [ros.call(CorrectTarget, f"/{name}/correct_target",
+                              CorrectTarget.Request(target=target_msg(t)), 30)
+                     for t in targets]
+        finally:
+            assert stop_process(node) == 0, (tmp_path / "restart.log").read_text()
+
     first, current = ("s1", "s2") if labelled else ("1", "auto-1")
     plan = off.fiducials.sessions
     assert plan.reference == current and plan.motion(first).moved
@@ -130,7 +146,8 @@ def test_two_sessions_warn_and_answer_as_offline(tmp_path, ros_harness, move_sig
     assert diag.level == DiagnosticStatus.WARN and off.warning in diag.message
     # ~/correct_target: targets in the current session, the offline model's answers
     tc = off.model.correct(targets)
-    for k, a in enumerate(answers):
+    for k, a in enumerate(answers + again):
+        k %= len(targets)
         assert a.success, a.message
         np.testing.assert_allclose(point_xyz(a.destination.point), tc.destination[k], atol=1e-9)
         np.testing.assert_allclose(point_xyz(a.corrected.point), tc.corrected[k], atol=1e-9)
