@@ -72,19 +72,21 @@ def run(args: argparse.Namespace) -> int:
     """Print the report, write JSON."""
     from ..core.evaluation import describe_misfits, gross_misfits, leave_one_out
     from ..core.model import build_model
-    from ..io.csv_io import read_fiducials, read_targets, target_sessions
+    from ..io.csv_io import read_targets, target_sessions
+    from ..io.csv_stream import read_fiducial_sums
     from ..io.report import format_report, model_report, write_json
 
     refuse_outputs_onto_inputs([("--json", args.json)], [("fiducials", args.fiducials),
                                                           ("--targets", args.targets)])
-    fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance,
-                         target_sessions(args.targets))
+    # read as a stream: per-fiducial means and repeat statistics, memory flat in the rows
+    fid = read_fiducial_sums(args.fiducials, args.dim, args.outlier_distance,
+                             target_sessions(args.targets))
     for note in fid.notes:
         warn("register", note)
     cfg = model_config(args, fid.dimension, fid.ids)
     try:
         model = build_model(fid.working, fid.destination, cfg, ids=fid.ids,
-                            working_repeats=fid.working_repeats, groups=fid.groups)
+                            repeat_statistics=fid.repeat_stats, groups=fid.groups)
     except ValueError as exc:   # name a fiducial the model cannot be built with, if one stands out
         flagged, misfit = gross_misfits(fid.working, fid.destination, floor=0.0)
         if not len(flagged):

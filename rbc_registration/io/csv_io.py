@@ -272,7 +272,7 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
     plan = None
     if "session" in header:
         plan, parsed = _restation(path, parsed, sessions, reference_sessions)
-    copies = _copied_runs([(p[0], p[2]) for p in parsed])
+    copies = _copied_runs([(p[0], (p[1],) + p[2]) for p in parsed])
     copied = {line for line, _ in copies}
     groups: dict[str, list[tuple[int, list[float], list[float]]]] = {}
     for line, fid, _, w, t in parsed:
