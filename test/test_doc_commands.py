@@ -464,7 +464,8 @@ def _runnable_docs() -> list[Any]:
     for path in DOCS:
         kinds = {kind(c) for _, c in doc_commands(path)} - {"not run"}
         needs_ros = bool(kinds & ROS_KINDS) or any(
-            "node_client" in c for _, c in doc_commands(path))
+            "node_client" in c or c.startswith("rbc-registration replay")
+            for _, c in doc_commands(path))
         if kinds:
             docs.append(pytest.param(path, id=str(path.relative_to(ROOT)),
                                      marks=[pytest.mark.ros] if needs_ros else []))
