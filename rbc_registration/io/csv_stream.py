@@ -25,7 +25,10 @@ fiducial's rows, when it has more); the spools take 8 x (4 + 2 d) bytes of tempo
 from __future__ import annotations
 
 import csv
+import io
+import itertools
 import math
+from operator import methodcaller
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -160,22 +163,30 @@ class _Parser:
         self.prev_line = 1
         self.n_rows = 0
 
-    def chunk(self, rows: list[list[str]], lines: list[int]) -> None:
-        """The next non-empty rows of the file and their lines."""
+    def chunk(self, rows: Optional[list[list[str]]], lines: list[int],
+              cols: Optional[list[Sequence[str]]] = None,
+              keys: Optional[list[int]] = None) -> None:
+        """The next non-empty rows of the file and their lines; or their columns (every row
+        of the header's length), and the hashes of their text (:func:`_text_key`)."""
         start = self.prev_line
         self.prev_line = lines[-1]
         if not self.ok:         # refused for its header, once the whole file is read
             return
         jumps = [k for k in range(len(lines)) if lines[k] - (lines[k - 1] if k else start) > 1]
-        if not (self.parsing and self.simple and self._fast(rows, lines, jumps)):
-            self._slow(rows, lines, start)
+        if self.parsing and self.simple:
+            if cols is None and rows is not None and set(map(len, rows)) == {self.nh}:
+                cols = list(zip(*rows))
+            if cols is not None and self._fast(list(cols), lines, jumps, keys):
+                return
+        if rows is None:
+            rows = [list(r) for r in zip(*cols)]
+        self._slow(rows, lines, start)
 
-    def _fast(self, rows: list[list[str]], lines: list[int], jumps: list[int]) -> bool:
+    def _fast(self, cols: list[Sequence[str]], lines: list[int], jumps: list[int],
+              keys: Optional[list[int]]) -> bool:
         """Convert well-formed rows column by column; False (nothing changed) when a row needs
         a closer look."""
-        if set(map(len, rows)) != {self.nh}:
-            return False
-        cols = list(zip(*rows))
+        n = len(lines)
         idx = self.index
         nw = len(self.numbers)
         for k, col in enumerate(cols):
@@ -184,13 +195,14 @@ class _Parser:
                 return False
             if _padded(joined):
                 cols[k] = tuple(map(str.strip, col))
+                keys = None
         fids = cols[idx[0]]
         if "" in fids:
             return False
-        points = np.empty((len(rows), nw))
+        points = np.empty((n, nw))
         for k in range(nw):
             try:
-                points[:, k] = np.array(cols[idx[1 + k]], dtype=np.float64)
+                points[:, k] = _floats(cols[idx[1 + k]])
             except ValueError:
                 return False
         if not (np.isfinite(points) & (np.abs(points) <= MAX_ABS_COORDINATE)).all():
@@ -214,17 +226,19 @@ class _Parser:
                 labels.append(session)
             self.session = session
         else:
-            labels = [self.session] * len(rows)
+            labels = [self.session] * n
         for name in dict.fromkeys(labels):
             self.sessions.setdefault(name, len(self.sessions))
         scodes = np.fromiter(map(self.sessions.__getitem__, labels), np.float64, len(labels))
         parts = [np.array(lines, dtype=np.float64), codes, scodes, points.T]
         if self.z_extra:
             parts += [[_z_value(v, idx[3 + nw + k] >= 0) for v in (
-                cols[idx[3 + nw + k]] if idx[3 + nw + k] >= 0 else [None] * len(rows))]
+                cols[idx[3 + nw + k]] if idx[3 + nw + k] >= 0 else [None] * n)]
                 for k in range(2)]
-        self._write(np.vstack(parts).T, list(map(hash, zip(*cols))))
-        self.n_rows += len(rows)
+        if keys is None:
+            keys = [_text_key(r) for r in zip(*cols)]
+        self._write(np.vstack(parts).T, keys)
+        self.n_rows += n
         return True
 
     def _slow(self, rows: list[list[str]], lines: list[int], prev: int) -> None:
@@ -277,8 +291,7 @@ class _Parser:
                 record += [_z_value(values[3 + nw], self.index[3 + nw] >= 0),
                            _z_value(values[4 + nw], self.index[4 + nw] >= 0)]
             records.append(record)
-            row_hashes.append(hash(tuple(tuple(v) if isinstance(v, list) else v
-                                         for v in (table.get(h) for h in header))))
+            row_hashes.append(_text_key([table.get(h) for h in header]))
         if records:
             self._write(np.array(records, dtype=np.float64), row_hashes)
 
@@ -309,6 +322,26 @@ class _Parser:
                        self.cell_counts)
 
 
+def _floats(column: Sequence[str]) -> NDArray[np.float64]:
+    """``float()`` of each text of a column (numpy converts as ``float()`` does); a column of
+    few distinct texts (a destination point repeated with each measurement) converts each text
+    once."""
+    distinct = dict.fromkeys(column)
+    if 4 * len(distinct) > len(column):
+        return np.array(column, dtype=np.float64)
+    table = dict(zip(distinct, np.array(list(distinct), dtype=np.float64).tolist()))
+    return np.fromiter(map(table.__getitem__, column), np.float64, len(column))
+
+
+def _text_key(values: Sequence[Any]) -> int:
+    """The hash of a row's text (its stripped fields in the header's order) by which copied
+    rows are found: of the fields joined by NUL (as the quick read hashes a line's), or of the
+    fields themselves when one is missing or holds a NUL."""
+    if all(isinstance(v, str) and "\x00" not in v for v in values):
+        return hash("\x00".join(values))
+    return hash(tuple(tuple(v) if isinstance(v, list) else v for v in values))
+
+
 #: The ASCII characters ``str.strip`` removes.
 _ASCII_SPACE = tuple(chr(c) for c in range(128) if chr(c).isspace())
 
@@ -319,6 +352,62 @@ def _padded(text: str) -> bool:
 
 
 REQUIRED = ["id", "wx", "wy", "dx", "dy"]
+
+
+#: Characters of a file read in blocks at a time.
+BLOCK_CHARS = 1 << 20
+
+
+def _read_blocks(parser: _Parser, fh: IO[str], line_no: int) -> None:
+    """Feed ``parser`` the rest of the file: blocks of whole lines split at commas while they
+    hold no quote, NUL or lone carriage return (then read exactly as the ``csv`` module reads
+    them); from the first block that does, the ``csv`` module."""
+    nh = parser.nh
+    limit = csv.field_size_limit()
+    while True:
+        raw = fh.read(BLOCK_CHARS)
+        if not raw:
+            return
+        if not raw.endswith("\n"):
+            raw += fh.readline()
+        block = raw.replace("\r\n", "\n") if "\r" in raw else raw
+        if '"' in block or "\x00" in block or "\r" in block or (
+                len(block) > limit and max(map(len, block.split("\n"))) > limit):
+            _read_csv(parser, csv.reader(itertools.chain(io.StringIO(raw, newline=""), fh)),
+                      line_no)
+            return
+        lines = block.split("\n")
+        if block.endswith("\n"):
+            lines.pop()
+        numbers = list(range(line_no + 1, line_no + 1 + len(lines)))
+        line_no += len(lines)
+        if "" in lines:                     # blank lines: skipped, still counted
+            numbers = [k for k, text in zip(numbers, lines) if text]
+            lines = [text for text in lines if text]
+            if not lines:
+                continue
+        if set(map(methodcaller("count", ","), lines)) == {nh - 1}:
+            joined = "\n".join(lines)
+            flat = joined.replace("\n", ",").split(",")
+            keys = list(map(hash, joined.replace(",", "\x00").split("\n")))
+            parser.chunk(None, numbers, [flat[k::nh] for k in range(nh)], keys)
+        else:
+            parser.chunk([text.split(",") for text in lines], numbers)
+
+
+def _read_csv(parser: _Parser, reader: Any, offset: int) -> None:
+    """Feed ``parser`` the rows of a ``csv`` reader (its lines after ``offset`` lines)."""
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    for row in reader:
+        if row:
+            rows.append(row)
+            lines.append(offset + reader.line_num)
+            if len(rows) >= CHUNK_ROWS:
+                parser.chunk(rows, lines)
+                rows, lines = [], []
+    if rows:
+        parser.chunk(rows, lines)
 
 
 def _parse(path: PathLike, dim: Optional[int]) -> _Parsed:
@@ -336,20 +425,14 @@ def _parse(path: PathLike, dim: Optional[int]) -> _Parsed:
     parser: Optional[_Parser] = None
     try:
         with fh:
-            reader = csv.reader(fh)
-            parser = _Parser(path, p, next(reader, []), dim)
-            parser.prev_line = reader.line_num
-            rows: list[list[str]] = []
-            lines: list[int] = []
-            for row in reader:
-                if row:
-                    rows.append(row)
-                    lines.append(reader.line_num)
-                    if len(rows) >= CHUNK_ROWS:
-                        parser.chunk(rows, lines)
-                        rows, lines = [], []
-            if rows:
-                parser.chunk(rows, lines)
+            head = fh.readline()
+            if '"' in head:
+                reader = csv.reader(itertools.chain([head], fh))
+                parser = _Parser(path, p, next(reader, []), dim)
+                _read_csv(parser, reader, 0)
+            else:
+                parser = _Parser(path, p, next(csv.reader([head]), []), dim)
+                _read_blocks(parser, fh, 1 if head else 0)
     except UnicodeDecodeError as exc:
         if parser is not None:
             parser.close()
