@@ -183,8 +183,8 @@ def test_report_directory(tmp_path, capsys):
     names = {p.name for p in out.iterdir()}
     assert names == {"report.json", "report.md", "mismatch_histograms.png", "fiducial_map.png",
                      "tre_per_target.png", "delta_tre.png", "cv_errors.png"}
-    # Every file written is one evaluate checks against the inputs before writing (a review:
-    # cv_errors.png was not, and a hard link of that name to an input was overwritten).
+    # Every file written is one evaluate checks against the inputs before writing (unchecked,
+    # a hard link of one such name to an input would be overwritten).
     assert names <= set(REPORT_FILES)
     md = (out / "report.md").read_text()
     assert "| sigma | sigma_axis | sigma_L0 | rho |" in md

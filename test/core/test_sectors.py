@@ -12,7 +12,7 @@ from rbc_registration.core.interpolation import PaperInterpolator
 
 
 def reference_sectors(points, targets):
-    """PaperInterpolator._sectors before the grid path (commit 5d63195), unchanged."""
+    """The reference sector rule: PaperInterpolator._sectors without the grid path."""
     tree = cKDTree(points)
     k = min(64, len(points))
     dist, cand = tree.query(targets, k=k)

@@ -426,7 +426,7 @@ def test_a_targets_row_without_truth_beside_rows_with_it(tmp_path):
 @pytest.mark.parametrize("degrees, warned", [(0.0, False), (0.3, False), (1.0, False),
                                              (3.0, True)])
 def test_a_tilted_plate_is_named_only_when_the_tilt_distorts_it(tmp_path, degrees, warned):
-    """A review of the rule above (a z range over 1 % of the cell): the RA-like plate (single
+    """A z range over 1 % of the cell is no rule: the RA-like plate (single
     measurements, its own bias and noise) tilted 0.3 degrees in the working frame was named,
     though the tilt changes its xy distances by ~1e-5 of their length and TRE_u by 0.6 %, and
     the advice (read in 3D) was refused as coplanar. Now the rule weighs what the 3D fit's tilt

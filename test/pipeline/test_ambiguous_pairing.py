@@ -80,7 +80,7 @@ def test_ambiguous_points_are_counted_as_ambiguous_and_never_measured():
 
 def test_a_pair_made_again_is_a_duplicate_and_reported_as_recorded():
     """Both point streams bridged twice, copies in order W D W' D': the copies are
-    duplicates (since stop 32 each point, dropped by the pairer before pairing: a copy made the
+    duplicates (each point, dropped by the pairer before pairing: a copy would make the
     points of a bag recorded twice ambiguous), nothing is recorded twice, and the pair is
     reported as recorded once (``~/take_sample`` keeps the latest point's recorded mark for its
     copy, :class:`~rbc_registration.ros.samples.SampleTaker`)."""

@@ -104,7 +104,7 @@ class TestTfFollowsTheModel(NodeTestBase):
                                    _matrix(again.corrected), atol=1e-12)
 
     def test_a_status_naming_a_rebuild_comes_after_its_tf_static(self, monkeypatch):
-        """CI (stop 27): the new model was served before its markers were built and its
+        """Unguarded, the new model was served before its markers were built and its
         /tf_static published; the status timer could meanwhile publish a ~/status whose
         last_recompute named the rebuild, and a late joiner then got the registration of the
         model before. Here the markers take 0.5 s and the timer runs every 20 ms."""
@@ -160,7 +160,7 @@ class TestResetDuringARebuild(NodeTestBase):
         """~/reset while a new model is being published (its markers take ~40 ms at 3,000
         fiducials): the forgotten model used to reach /tf_static and calibration.json after the
         reset (4 and 5 of 5 trials). Here the rebuild is held while its markers are
-        built (before it is served and published, since a CI failure of stop 27) until the
+        built (before it is served and published) until the
         reset has answered."""
         import threading
 
