@@ -28,7 +28,7 @@ from pathlib import Path
 
 def write_cell(directory: Path) -> tuple[Path, Path]:
     """FIDUCIALS.csv and TARGETS.csv of the RA-like cell (seed 0, mm)."""
-    from rbc_registration.core.synthetic import make_cell
+    from rbc_registration.core.synthetic.cells import make_cell
     from rbc_registration.io.csv_io import write_fiducials, write_targets
 
     cell = make_cell("RA", seed=0)

@@ -42,13 +42,13 @@ import numpy as np  # noqa: E402
 import rbc_registration  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
-from rbc_registration.core.interpolation import PaperInterpolator  # noqa: E402
-from rbc_registration.core.mismatch import sigma_l  # noqa: E402
+from rbc_registration.core.interpolation.paper import PaperInterpolator  # noqa: E402
+from rbc_registration.core.rigid.mismatch import sigma_l  # noqa: E402
 from rbc_registration.core.model import ModelConfig, build_model  # noqa: E402
-from rbc_registration.core.registration import rigid_fit  # noqa: E402
-from rbc_registration.core.gauss_newton import (  # noqa: E402
+from rbc_registration.core.rigid.registration import rigid_fit  # noqa: E402
+from rbc_registration.core.rigid.gauss_newton import (  # noqa: E402
     dense_gauss_newton_step, gauss_newton_step)
-from rbc_registration.core.restoration import restore_rigid_body  # noqa: E402
+from rbc_registration.core.rigid.restoration import restore_rigid_body  # noqa: E402
 
 
 def turned(y: np.ndarray) -> np.ndarray:

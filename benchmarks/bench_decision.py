@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 from bench_core import timings  # noqa: E402
 from rbc_registration.core.model import ModelConfig, build_model  # noqa: E402
-from rbc_registration.core.synthetic import make_cell  # noqa: E402
+from rbc_registration.core.synthetic.cells import make_cell  # noqa: E402
 
 
 def volume_cell(j: int, seed: int = 0):

@@ -1,7 +1,8 @@
 """Calibration of kriging's summary conditioning above ``EXACT_MAX_FIDUCIALS`` against the exact GP.
 
 For each cell (2D and 3D, short and long length scales, J = 1,000-5,000) the same fiducials and
-hyper-parameters are conditioned exactly and by the summary (``core/kriging_summary.py``), and
+hyper-parameters are conditioned exactly and by the summary
+(``core/interpolation/kriging_summary.py``), and
 the script prints the distribution of the ratio summary / exact of
 
 - the posterior standard deviation at targets inside the cell's box (and 10 % beyond it),
@@ -24,8 +25,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from rbc_registration.core import kriging, kriging_summary  # noqa: E402
-from rbc_registration.core.crossval import K_FOLDS, FoldScheme, fold_groups  # noqa: E402
-from rbc_registration.core.gp_fit import KrigingHyperparameters  # noqa: E402
+from rbc_registration.core.decision.crossval import K_FOLDS, FoldScheme, fold_groups  # noqa: E402
+from rbc_registration.core.interpolation.gp_fit import KrigingHyperparameters  # noqa: E402
 
 
 def grid3(j):

@@ -1,6 +1,6 @@
 """The decision on the project's synthetic cells: single measurements, no sigma, defaults only.
 
-For each cell (``A``, ``B``, ``RA`` of :mod:`rbc_registration.core.synthetic`) and seed, one
+For each cell (``A``, ``B``, ``RA`` of :mod:`rbc_registration.core.synthetic.cells`) and seed, one
 instantaneous dataset (the first measurement of every fiducial and target; no repeats, no sigma
 given) goes through ``build_model`` with the default ``ModelConfig`` (decision ``cv``), and the
 targets are scored against the truth:
@@ -30,7 +30,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from rbc_registration.core.model import ModelConfig, build_model  # noqa: E402
-from rbc_registration.core.synthetic import make_cell  # noqa: E402
+from rbc_registration.core.synthetic.cells import make_cell  # noqa: E402
 
 #: Largest mean TRE(destination) / TRE_u per cell (issue 9).
 RATIO_LIMITS = {"A": 0.08, "B": 1.01, "RA": 0.65}

@@ -1,12 +1,14 @@
 """Which correction the ``cv`` decision picks on few fiducials, and what it costs at the targets.
 
-Per cell (``RA``, ``A`` of :mod:`rbc_registration.core.synthetic`) and seed, single measurements
+Per cell (``RA``, ``A`` of :mod:`rbc_registration.core.synthetic.cells`) and seed, single
+measurements
 (the first of every fiducial and target; sigma given: the cell's; kriging configured, as in
 ``plan_cells.py``), random subsets of the fiducials (one random order per seed, its first n for
 each n in ``--counts``) go through ``build_model``. For each model the median target TRE against
 the truth is taken for every candidate (uncorrected, paper, kriging), and the choice is made by
 
-- ``preference`` (the shipped rule, :func:`~rbc_registration.core.decision.decide`): among the
+- ``preference`` (the shipped rule, :func:`~rbc_registration.core.decision.choice.decide`): among
+the
   corrections that beat the uncorrected registration, the first in ``decision.PREFERENCE`` unless
   another's held-out errors are significantly smaller than its own;
 - ``smallest median``: among the same corrections, the smallest cross-validated median (the rule
@@ -30,9 +32,9 @@ import numpy as np  # noqa: E402
 
 from rbc_registration.core.answers import TargetEvaluation  # noqa: E402
 from rbc_registration.core.constants import CANDIDATES, UNCORRECTED  # noqa: E402
-from rbc_registration.core.decision import SIGNIFICANCE, Decision  # noqa: E402
+from rbc_registration.core.decision.choice import SIGNIFICANCE, Decision  # noqa: E402
 from rbc_registration.core.model import ModelConfig, build_model  # noqa: E402
-from rbc_registration.core.synthetic import make_cell  # noqa: E402
+from rbc_registration.core.synthetic.cells import make_cell  # noqa: E402
 from rbc_registration.core.validation import as_points  # noqa: E402
 
 COUNTS = (11, 12, 13, 15, 20, 25, 30, 40, 50, 60)

@@ -42,7 +42,7 @@ import scipy.stats  # noqa: E402
 from rbc_registration.core.model import ModelConfig, RbcModel, build_model  # noqa: E402
 from rbc_registration.core.model_planner import plan_from_model  # noqa: E402
 from rbc_registration.core.planner import PlanConfig  # noqa: E402
-from rbc_registration.core.synthetic import make_cell  # noqa: E402
+from rbc_registration.core.synthetic.cells import make_cell  # noqa: E402
 
 ORDERS = ("planner", "random", "farthest")
 COUNTS = tuple(range(10, 61, 5))
@@ -249,12 +249,12 @@ ROBOT_COUNTS = (4, 6, 8, 10, 12, 14, 16, 20, 24, 30)
 
 
 class RobotPlan:
-    """A grouped robot cell (:func:`rbc_registration.core.synthetic_structure.make_robot_cell`,
+    """A grouped robot cell (:func:`rbc_registration.core.synthetic.structure.make_robot_cell`,
     :data:`ROBOT_POSES` poses of exactly :data:`ROBOT_PER_POSE` reflectors, one measurement
     each): a candidate is a pose, measured as a whole."""
 
     def __init__(self, seed: int) -> None:
-        from rbc_registration.core.synthetic_structure import make_robot_cell
+        from rbc_registration.core.synthetic.structure import make_robot_cell
 
         c = make_robot_cell(seed, poses=ROBOT_POSES, targets=40)
         keep = [k for k, g in enumerate(c.fiducial_groups)

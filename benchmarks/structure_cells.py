@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/structure_cells.py [--seeds 20] [--session-seeds 40] [--json F]
 
-Groups (core/synthetic_structure.make_robot_cell: 36 poses x 3-4 reflectors, one measurement
+Groups (core/synthetic/structure.make_robot_cell: 36 poses x 3-4 reflectors, one measurement
 each, no sigma, 40 targets at poses of their own): per seed the share of targets within their
 95 % bound and the mean TRE of the point to use over the mean uncorrected TRE, with the groups
 given (leave-one-group-out) and without (leave-one-out by id).
@@ -26,8 +26,8 @@ import numpy as np
 
 from rbc_registration.core.model import ModelConfig, build_model
 from rbc_registration.core.sessions import estimate_sessions, session_cells
-from rbc_registration.core.synthetic import make_cell
-from rbc_registration.core.synthetic_structure import make_robot_cell, moved_sessions
+from rbc_registration.core.synthetic.cells import make_cell
+from rbc_registration.core.synthetic.structure import make_robot_cell, moved_sessions
 
 
 def grouped(seeds: int) -> dict:

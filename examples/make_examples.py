@@ -1,6 +1,7 @@
 """Write the example cells of the README (``examples/cell3d/`` and ``examples/plate2d/``, mm).
 
-Both come from the project's synthetic cells (:func:`rbc_registration.core.synthetic.make_cell`,
+Both come from the project's synthetic cells
+(:func:`rbc_registration.core.synthetic.cells.make_cell`,
 seed 0), cut down to a size read at a glance:
 
 - ``cell3d``: the A-like 3D cell (3 m x 3 m x 1.8 m, a bias of sigma_L0 ~ 2.5 mm), every
@@ -29,7 +30,7 @@ default_one_blas_thread()   # before numpy loads: the same sums whatever the mac
 
 import numpy as np  # noqa: E402
 
-from rbc_registration.core.synthetic import make_cell  # noqa: E402
+from rbc_registration.core.synthetic.cells import make_cell  # noqa: E402
 from rbc_registration.io.csv_io import write_fiducials, write_targets  # noqa: E402
 
 HERE = Path(__file__).resolve().parent

@@ -106,6 +106,55 @@ def test_imports_point_down_only():
     assert wrong == []
 
 
+#: The method's parts (subpackages of core) and the other parts each may import; every part may
+#: import itself and the modules at core's root (what the parts share), and the root may import
+#: every part.
+CORE_PARTS = {
+    "rigid": set(),
+    "interpolation": {"rigid"},
+    "decision": {"rigid", "interpolation"},
+    "measurements": {"rigid", "decision"},
+    "planning": {"rigid", "interpolation", "decision"},
+    "synthetic": {"rigid", "interpolation", "decision", "measurements", "planning"},
+}
+CORE = PKG / "core"
+
+
+def core_part_imports(path):
+    """(line, part) of every import of a core part in the file at ``path`` (core's root modules
+    as ``""``)."""
+    parts = path.relative_to(PKG).with_suffix("").parts
+    package = ["rbc_registration", *parts[:-1]]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            mod = base + (node.module.split(".") if node.module else [])
+            names = [mod] if node.module else [mod + [a.name] for a in node.names]
+        elif isinstance(node, ast.Import):
+            names = [a.name.split(".") for a in node.names]
+        else:
+            continue
+        for bits in names:
+            if bits[:2] == ["rbc_registration", "core"] and len(bits) > 2:
+                out.append((node.lineno, bits[2] if bits[2] in CORE_PARTS else ""))
+    return out
+
+
+def test_the_parts_of_core_import_as_the_method_builds_on_itself():
+    present = sorted(p.name for p in CORE.iterdir() if (p / "__init__.py").exists())
+    assert present and set(present) <= set(CORE_PARTS), present
+    root_modules = [p for p in CORE.glob("*.py") if p.name != "__init__.py"]
+    assert len(root_modules) <= 12, sorted(p.name for p in root_modules)
+    wrong = []
+    for part in present:
+        for path in sorted((CORE / part).rglob("*.py")):
+            for line, target in core_part_imports(path):
+                if target and target != part and target not in CORE_PARTS[part]:
+                    wrong.append(f"{path.relative_to(PKG)}:{line} ({part}) imports {target}")
+    assert wrong == []
+
+
 def test_the_parser_loads_no_numpy():
     code = ("import sys\nfrom rbc_registration import cli\ncli.build_parser()\n"
             "heavy = sorted(m for m in sys.modules if m.split('.')[0] in "

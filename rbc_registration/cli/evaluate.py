@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         print("evaluate: interrupted", file=sys.stderr)
         return 130
     print_summary(ev)
-    from ..core.scale import implausible_metres
+    from ..core.rigid.scale import implausible_metres
     large = implausible_metres(ev.model.destination)
     ambiguous = ambiguous_points_line(ev, topics.working_point, topics.destination_point)
     # Every warning goes to stderr and into report.json / report.md (the blunder line is the

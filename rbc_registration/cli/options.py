@@ -99,17 +99,17 @@ def warn_unit_mismatch(command: str, fiducials: object, targets: object, report:
 def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
                         destination: object = None, truth: object = None) -> list[str]:
     """One line when every target is out of the hull at a scale ~100x or more off the
-    fiducials' (:func:`rbc_registration.core.scale.unit_mismatch`); another when the targets'
+    fiducials' (:func:`rbc_registration.core.rigid.scale.unit_mismatch`); another when the targets'
     truth is that far off the fiducials' destination points, or else when some targets' truth
-    stands out (:func:`rbc_registration.core.evaluation.describe_truth_blunders`).
+    stands out (:func:`rbc_registration.core.decision.evaluation.describe_truth_blunders`).
 
     :param fiducials: the model's fiducials, working frame; :param targets: the report's
         targets, working frame (``None``: none); :param report: the report (its hull flags);
     :param destination: the fiducials in the destination frame; :param truth: the targets'
         true points there (``None``: no truth).
     """
-    from ..core.evaluation import describe_truth_blunders
-    from ..core.scale import unit_mismatch
+    from ..core.decision.evaluation import describe_truth_blunders
+    from ..core.rigid.scale import unit_mismatch
 
     if targets is None or not report.get("targets"):
         return []
@@ -141,8 +141,8 @@ def unit_mismatch_lines(fiducials: object, targets: object, report: dict,
 def warn_model(command: str, model: Any, unit: str) -> None:
     """The warnings of a model built from a fiducials file (``register``, ``plan``), one line
     each: :func:`~rbc_registration.core.warnings.model_warnings`, and a cell too large or too
-    small for ``unit`` (:func:`~rbc_registration.core.scale.implausible_size`)."""
-    from ..core.scale import implausible_size
+    small for ``unit`` (:func:`~rbc_registration.core.rigid.scale.implausible_size`)."""
+    from ..core.rigid.scale import implausible_size
     from ..core.warnings import model_warnings
 
     for line in model_warnings(model, unit):

@@ -70,7 +70,7 @@ def model_config(args: argparse.Namespace, dimension: int,
 
 def run(args: argparse.Namespace) -> int:
     """Print the report, write JSON."""
-    from ..core.evaluation import describe_misfits, gross_misfits, leave_one_out
+    from ..core.decision.evaluation import describe_misfits, gross_misfits, leave_one_out
     from ..core.model import build_model
     from ..io.csv_io import read_targets, target_sessions
     from ..io.csv_stream import read_fiducial_sums

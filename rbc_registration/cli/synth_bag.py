@@ -40,7 +40,7 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write a synthetic cell as a bag."""
-    from ..core.synthetic import make_cell
+    from ..core.synthetic.cells import make_cell
     from ..io.bag.records import Topics
     from ..io.bag.synthetic import cell_message_count, cell_messages
     from ..io.bag.writer import write_bag

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .constants import UNCORRECTED
-from .interpolation import HullTest, Interpolated
+from .interpolation.paper import HullTest, Interpolated
 
 if TYPE_CHECKING:                       # model imports this module
     from .model import RbcModel

@@ -8,8 +8,8 @@ from typing import Optional
 
 from .constants import (INTERPOLATIONS, MAX_RESTORATION_STEPS, DecisionMode,
                         check_rho_thresholds)
-from .noise import point_sigma
-from .restoration import METHODS
+from .decision.noise import point_sigma
+from .rigid.restoration import METHODS
 from .validation import MAX_ABS_COORDINATE
 
 

@@ -33,7 +33,8 @@ class FoldKind(str, Enum):
 
 #: The values of :class:`FoldKind`.
 FOLD_KINDS = tuple(kind.value for kind in FoldKind)
-#: Outcomes of the rho rule (paper section 6), see :func:`rbc_registration.core.noise.assess`.
+#: Outcomes of the rho rule (paper section 6), see
+#: :func:`rbc_registration.core.decision.noise.assess`.
 RECOMMENDATIONS = ("apply", "uncertain", "do_not_apply", "unknown")
 
 

@@ -42,7 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.distance import cdist
 
 from .constants import DIMENSIONS
-from .gp_fit import matern52 as _matern52  # overwrites its distances: pass fresh ones
+from .interpolation.gp_fit import matern52 as _matern52  # overwrites its distances: pass fresh ones
 from .rigid_tre import RigidFitError
 from .validation import as_points
 

@@ -25,16 +25,16 @@ from numpy.typing import ArrayLike, NDArray
 from .answers import TargetAnswer, TargetCorrections, TargetEvaluation
 from .config import ModelConfig
 from .constants import CANDIDATES, INTERPOLATIONS, UNCORRECTED, DecisionMode, SigmaSource
-from .crossval import cross_validate, in_thread
-from .decision import Decision, decide
-from .groups import group_labels
-from .interpolation import PaperInterpolator
-from .kriging import KrigingHyperparameters, KrigingInterpolator, summarised
-from .noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
-from .registration import Registration, rigid_fit
-from .restoration import RestorationResult, restore_rigid_body
+from .decision.crossval import cross_validate, in_thread
+from .decision.choice import Decision, decide
+from .decision.groups import group_labels
+from .interpolation.paper import PaperInterpolator
+from .interpolation.kriging import KrigingHyperparameters, KrigingInterpolator, summarised
+from .decision.noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
+from .rigid.registration import Registration, rigid_fit
+from .rigid.restoration import RestorationResult, restore_rigid_body
 from .rigid_tre import FitGeometry
-from .scale import frame_mismatch
+from .rigid.scale import frame_mismatch
 from .validation import as_point_pairs, as_points, check_subset
 
 __all__ = ["INTERPOLATIONS", "Interpolator", "ModelConfig", "RbcModel", "TargetAnswer",

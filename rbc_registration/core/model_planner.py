@@ -27,9 +27,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .constants import DecisionMode
-from .evaluation import leave_one_out
+from .decision.evaluation import leave_one_out
 from .expected_error import ExpectedErrorModel, expected_squared_errors, pooled_median
-from .kriging import KrigingInterpolator
+from .interpolation.kriging import KrigingInterpolator
 from .model import RbcModel
 from .model_check import ModelCheck, check_model, units_to_trust
 from .planner import (DEFAULT_PLAN_CONFIG, MeasurementPlan, PlanConfig, measurement_repeats,

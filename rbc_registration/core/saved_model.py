@@ -22,11 +22,11 @@ from numpy.typing import ArrayLike, NDArray
 from .answers import TargetAnswer, TargetCorrections, TargetEvaluation
 from .config import ModelConfig
 from .constants import CANDIDATES, INTERPOLATIONS, UNCORRECTED
-from .decision import ErrorModel
-from .interpolation import PaperInterpolator
-from .kriging import KrigingHyperparameters, KrigingInterpolator
+from .decision.choice import ErrorModel
+from .interpolation.paper import PaperInterpolator
+from .interpolation.kriging import KrigingHyperparameters, KrigingInterpolator
 from .model import Interpolator, RbcModel
-from .registration import Registration
+from .rigid.registration import Registration
 from .rigid_tre import FitGeometry
 from .validation import as_point_pairs, as_points
 

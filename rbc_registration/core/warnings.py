@@ -6,12 +6,12 @@ from __future__ import annotations
 
 from typing import Optional, Sequence
 
-from .evaluation import blunders, describe_blunders
-from .groups import undeclared_groups
+from .decision.evaluation import blunders, describe_blunders
+from .decision.groups import undeclared_groups
 from .model import RbcModel
-from .noise import identical_repeats, scattered_repeats
+from .decision.noise import identical_repeats, scattered_repeats
 from .repeats import describe_twins, twin_groups
-from .scale import rigidity_warnings
+from .rigid.scale import rigidity_warnings
 
 
 def model_warnings(model: RbcModel, unit: str,

@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..core.constants import INTERPOLATIONS
 from ..core.frames import same_frame_problem
-from ..core.quaternion import (ORTHONORMAL_TOLERANCE, matrix_from_quaternion,
+from ..core.rigid.quaternion import (ORTHONORMAL_TOLERANCE, matrix_from_quaternion,
                                quaternion_from_matrix)
 from . import calibration_format as fields
 from .calibration_answers import Answers, read_answers
@@ -217,7 +217,7 @@ def calibration_from_registration(
         clock: Callable[[], float] = time.time,
         version: Optional[str] = None, answers: Optional[Answers] = None) -> Calibration:
     """A :class:`Calibration` of the registration ``destination ≈ rotation @ working +
-    translation`` (a :class:`~rbc_registration.core.registration.Registration`'s fields).
+    translation`` (a :class:`~rbc_registration.core.rigid.registration.Registration`'s fields).
 
     :param rotation: R, (3, 3), or (2, 2) for a 2D model (embedded as a rotation about z).
     :param translation: t [m], (3,), or (2,) for a 2D model (z = 0).

@@ -17,11 +17,11 @@ from typing import Any, Optional
 import numpy as np
 
 from ..core.constants import INTERPOLATIONS
-from ..core.decision import ErrorModel
-from ..core.kriging import KrigingHyperparameters
+from ..core.decision.choice import ErrorModel
+from ..core.interpolation.kriging import KrigingHyperparameters
 from ..core.model import RbcModel
-from ..core.quaternion import quaternion_from_matrix
-from ..core.registration import Registration
+from ..core.rigid.quaternion import quaternion_from_matrix
+from ..core.rigid.registration import Registration
 from ..core.saved_model import ModelParts, SavedModel, needed_interpolations, saved_model
 from ..core.validation import MAX_ABS_COORDINATE
 from . import calibration_format as fields
@@ -46,7 +46,7 @@ class Answers:
     :ivar interpolation: the configured interpolation (``corrected``, ``correction``).
     :ivar uncorrected: {R_u, τ_u} as (rotation rows, translation), d x d and d.
     :ivar corrected: {R_c, τ_c} as the same.
-    :ivar error_model: the decision's :class:`~rbc_registration.core.decision.ErrorModel`
+    :ivar error_model: the decision's :class:`~rbc_registration.core.decision.choice.ErrorModel`
         (NaN factors: no cross-validation was possible).
     :ivar kriging: kriging's hyper-parameters, None when kriging was not built.
     :ivar ids: the fiducial ids; ``working``, ``corrections`` (d each) and ``repeats`` per id.

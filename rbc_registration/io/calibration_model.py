@@ -14,7 +14,7 @@ import time
 from typing import Any, Callable, Mapping, NamedTuple, Optional
 
 from ..core.constants import METRES_PER_UNIT, UNCORRECTED, UNIT_ALIASES
-from ..core.decision import Decision as ModelDecision
+from ..core.decision.choice import Decision as ModelDecision
 from ..pipeline.named import calibration_name_problem, is_calibration_name
 from ..pipeline.settings import Settings
 from ..pipeline.snapshot import SNAPSHOT_FORMAT
@@ -136,7 +136,7 @@ def calibration_from_state(state: ModelState, settings: Settings, registration: 
         child_frame=settings.working_frame, registration=registration, fre_rms=reg.fre_rms,
         decision=decision_record(model.decision), sigma=model.sigma, sigma_l=model.sigma_l,
         # The node fits both registrations to all fiducials: the corrected one's rigid part
-        # then agrees with the uncorrected one to second order in the bias (core/restoration).
+        # then agrees with the uncorrected one to second order in the bias (core/rigid/restoration).
         expected_tre_rigid=rigid_expected_tre(model.decision),
         expected_tre_with_corrections=expected_tre(model.decision),
         n_fiducials=len(model.ids), clock=clock or (lambda: stamp_s),
@@ -280,7 +280,7 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
         raise ValueError(f"{where}: n_fiducials: must be an integer, got {n_fiducials!r}")
     # The uncorrected registration's held-out error is the rigid figure of either registration
     # when both were fitted to the same fiducials (they then agree to second order in the bias,
-    # core/restoration); of a corrected one fitted to other fiducials it is not known.
+    # core/rigid/restoration); of a corrected one fitted to other fiducials it is not known.
     rigid = figures.uncorrected if registration == UNCORRECTED or same_fits else None
     try:
         cal = calibration_from_registration(

@@ -6,7 +6,7 @@ location, their scatter gives sigma. TARGETS.csv: ``id,wx,wy,wz`` and optionally
 (truth). Any consistent length unit. Extra columns are ignored; column order is free.
 
 Optional columns of FIDUCIALS.csv: ``group`` (fiducials that share an error, e.g. the reflectors
-of one robot pose: held out together, :mod:`~rbc_registration.core.groups`; empty: its own
+of one robot pose: held out together, :mod:`~rbc_registration.core.decision.groups`; empty: its own
 group) and ``session`` (the measuring session; an empty cell continues the row before's session,
 the first rows' is ``1``). With more than one session, every session's working points are mapped
 into the reference session's frame when it moved, or left out when it cannot be compared
@@ -344,10 +344,10 @@ def target_sessions(path: Optional[PathLike]) -> Optional[tuple[str, ...]]:
 
 
 def _dropped_z_note(rows: list, groups: dict) -> Optional[str]:
-    """:func:`~rbc_registration.core.scale.dropped_z_warning` of a file read in 2D that has z
+    """:func:`~rbc_registration.core.rigid.scale.dropped_z_warning` of a file read in 2D that has z
     columns, on each id's first row (z 0 where a frame has no z column, NaN where not a
     number: that row is not looked at)."""
-    from ..core.scale import dropped_z_warning
+    from ..core.rigid.scale import dropped_z_warning
 
     def value(row: dict, column: str) -> float:
         text = (row.get(column) or "").strip() if column in row else "0"

@@ -2,7 +2,7 @@
 
 :func:`read_fiducial_sums` applies the rules of :func:`~.csv_io.read_fiducials` (the same ids,
 means, notes, groups, sessions and errors, in the same order) but returns each fiducial's mean
-points and :class:`~rbc_registration.core.noise.RepeatStats` instead of its rows:
+points and :class:`~rbc_registration.core.decision.noise.RepeatStats` instead of its rows:
 
 1. the file is parsed once (the ``csv`` module), :data:`CHUNK_ROWS` rows at a time, into a spool
    of fixed-width float64 records in an unlinked temporary file (line, id, session, the working
@@ -37,7 +37,7 @@ from typing import IO, Any, Iterator, Optional, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from ..core.noise import RepeatStats
+from ..core.decision.noise import RepeatStats
 from ..core.repeats import repeat_outlier
 from ..core.sessions import SessionPlan, estimate_sessions
 from ..core.validation import MAX_ABS_COORDINATE
@@ -709,7 +709,7 @@ def _summarise(path: PathLike, parsed: _Parsed, outlier_distance: Optional[float
                 variances[j] = float(np.sum(np.var(wk - wk[0], axis=0, ddof=1)))
     notes += _ignored_rows_notes(path, ignored, kept - len(copies), limits[0])
     if parsed.z_extra:
-        from ..core.scale import dropped_z_warning
+        from ..core.rigid.scale import dropped_z_warning
 
         tilted = dropped_z_warning([[float(r[3]), float(r[4]), float(r[7])] for r in heads],
                                    [[float(r[5]), float(r[6]), float(r[8])] for r in heads], "")

@@ -17,9 +17,9 @@ import numpy as np
 
 from ..core.accumulator import FiducialSet
 from ..core.constants import MM_PER_M as MM
-from ..core.evaluation import leave_one_out, target_errors
-from ..core.mismatch import pairwise_mismatch
-from ..core.noise import format_rho
+from ..core.decision.evaluation import leave_one_out, target_errors
+from ..core.rigid.mismatch import pairwise_mismatch
+from ..core.decision.noise import format_rho
 from ..core.model import RbcModel
 from ..core.sessions import SessionPlan
 from ..pipeline.offline import evaluate_inputs

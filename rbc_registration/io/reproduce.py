@@ -13,10 +13,10 @@ from typing import Any, Callable, Optional
 import numpy as np
 
 from ..core.constants import CANDIDATES, CELLS, INTERPOLATIONS
-from ..core.experiments import CellResult, run_cell
+from ..core.synthetic.experiments import CellResult, run_cell
 from ..core.model import ModelConfig
-from ..core.noise import format_rho
-from ..core.synthetic import make_cell
+from ..core.decision.noise import format_rho
+from ..core.synthetic.cells import make_cell
 from . import figures
 from .escape import terminal
 

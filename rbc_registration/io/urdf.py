@@ -2,7 +2,8 @@
 the pose of the child (working) frame in the parent (destination) frame, metres and radians.
 
 URDF's ``rpy`` is roll, pitch, yaw about the fixed axes X, Y, Z (``R = Rz(yaw) Ry(pitch)
-Rx(roll)``, REP 103, tf2's ``getRPY``): :func:`~rbc_registration.core.quaternion.rpy_from_matrix`.
+Rx(roll)``, REP 103, tf2's ``getRPY``):
+:func:`~rbc_registration.core.rigid.quaternion.rpy_from_matrix`.
 The file :func:`urdf_document` writes is a ``<robot>`` element holding the joint, which
 ``<xacro:include filename="..."/>`` inserts into a robot description. No rclpy.
 """
@@ -13,7 +14,7 @@ import os
 import re
 from typing import Optional
 
-from ..core.quaternion import matrix_from_quaternion, rpy_from_matrix
+from ..core.rigid.quaternion import matrix_from_quaternion, rpy_from_matrix
 from .calibration import Calibration
 from .escape import xml_attribute, xml_comment
 

@@ -40,7 +40,7 @@ from typing import IO, Any, Callable, Optional
 
 from ..core.errors import OperationError
 from ..core.accumulator import FiducialSet
-from ..core.kriging import KrigingHyperparameters
+from ..core.interpolation.kriging import KrigingHyperparameters
 from .settings import PROCESS_MIN_FIDUCIALS, Settings
 from .state import ModelState, build_state
 

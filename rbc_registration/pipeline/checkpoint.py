@@ -33,7 +33,7 @@ import numpy as np
 
 from ..core.accumulator import FiducialAccumulator, Record
 from ..core.records import REJECT_REASONS, FiducialRepeats
-from ..core.registration import Registration
+from ..core.rigid.registration import Registration
 from ..core.sessions import Bump
 from .files import read_regular
 

@@ -12,7 +12,7 @@ from typing import Any, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.registration import Registration
+from ..core.rigid.registration import Registration
 
 
 def json_number(value: Any) -> Optional[float]:

@@ -24,7 +24,7 @@ from ..core.model_check import ModelCheck
 from ..core.model_planner import calibrated, expected_target_error, plan_from_model, \
     served_error_model
 from ..core.planner import MeasurementPlan, PlanConfig
-from ..core.scale import point_sets_unit_mismatch
+from ..core.rigid.scale import point_sets_unit_mismatch
 from ..core.validation import as_points
 from .settings import Settings
 from .state import EMPTY_STATE, ModelState

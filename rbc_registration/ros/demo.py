@@ -22,8 +22,8 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from ..core.constants import MM_PER_M
-from ..core.noise import format_rho
-from ..core.synthetic import make_cell
+from ..core.decision.noise import format_rho
+from ..core.synthetic.cells import make_cell
 from ..io.bag.reader import read_bag
 from ..io.bag.records import DEFAULT_TOPICS
 from ..io.bag.synthetic import cell_messages

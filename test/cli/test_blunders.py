@@ -1,12 +1,12 @@
 """A fiducial whose held-out error stands out (a mistyped coordinate) is named in one warning
-line by register and evaluate (core/evaluation.py ``blunders``)."""
+line by register and evaluate (core/decision/evaluation.py ``blunders``)."""
 
 import numpy as np
 
 from rbc_registration import cli
-from rbc_registration.core.evaluation import BLUNDER_FACTOR, blunders
+from rbc_registration.core.decision.evaluation import BLUNDER_FACTOR, blunders
 from rbc_registration.core.model import ModelConfig, build_model
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.csv_io import write_fiducials, write_targets
 
 
@@ -49,7 +49,8 @@ def test_register_names_the_blunder_in_one_warning_line(tmp_path, capsys):
 
 def test_register_names_the_fiducial_a_model_cannot_be_built_with(tmp_path, capsys):
     """One coordinate typed 1e10 mm off: the core's reason (degenerate geometry or "frames in
-    different units") now names the fiducial that stands out (core/evaluation.gross_misfits)."""
+    different units") now names the fiducial that stands out
+    (core/decision/evaluation.gross_misfits)."""
     cell, x, y = single("A", 0)
     x[50, 0] += 1e10
     f = tmp_path / "f.csv"

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from rbc_registration import cli
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.bag.synthetic import cell_messages
 from rbc_registration.io.bag.writer import write_bag
 from rbc_registration.io.csv_io import write_fiducials, write_targets

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rbc_registration.core import ModelConfig, build_model, leave_one_out, target_errors
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.csv_io import write_fiducials, write_targets
 from rbc_registration.io.report import format_report, model_report
 

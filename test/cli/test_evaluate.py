@@ -12,7 +12,7 @@ import pytest
 
 from rbc_registration import cli
 from rbc_registration.core.constants import M_PER_MM
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io import escape
 from rbc_registration.io.bag.records import DEFAULT_TOPICS, OutMessage
 from rbc_registration.io.bag.synthetic import cell_messages
@@ -605,7 +605,8 @@ def tilted(messages, degrees):
 @pytest.mark.parametrize("points", [False, True])
 def test_a_tilted_plate_bag_read_in_2d_is_named(tmp_path, capsys, points):
     """A bag of a plate tilted 3 degrees in the working frame, read in 2D: the same warning as
-    a CSV file (core/scale.dropped_z_warning, through the node's ingestion, so for FiducialPair
+    a CSV file (core/rigid/scale.dropped_z_warning, through the node's ingestion, so for
+    FiducialPair
     and point topics alike: the point topics had none); level (0 degrees) none."""
     cell = make_cell("RA", seed=0)
     for name, degrees in (("tilted", 3.0), ("level", 0.0)):

@@ -10,7 +10,7 @@ import pytest
 
 from rbc_registration import cli
 from rbc_registration.core.accumulator import FiducialAccumulator
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.calibration import (read_calibration,
                                              static_transform_publisher_command)
 from rbc_registration.io.calibration_model import calibration_from_state

@@ -32,7 +32,7 @@ class BlockRos(importlib.abc.MetaPathFinder):
 
 sys.meta_path.insert(0, BlockRos())
 from rbc_registration.cli import main
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.csv_io import write_fiducials, write_targets
 
 out = sys.argv[2]

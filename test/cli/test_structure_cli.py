@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from rbc_registration.core.synthetic import make_cell
-from rbc_registration.core.synthetic_structure import make_robot_cell, moved_sessions
+from rbc_registration.core.synthetic.cells import make_cell
+from rbc_registration.core.synthetic.structure import make_robot_cell, moved_sessions
 
 
 def run(*args, check=True):

@@ -291,7 +291,7 @@ def test_restore_is_identical_for_any_stream(stream):
 
 def test_running_statistics_match_the_repeats_and_stay_small():
     """The store keeps running statistics per fiducial; they equal those of all the repeats."""
-    from rbc_registration.core.noise import estimate_sigma, repeat_stats
+    from rbc_registration.core.decision.noise import estimate_sigma, repeat_stats
     rng = np.random.default_rng(7)
     acc = make(outlier_distance=0.0)
     reps = {f"H{k}": rng.normal(0, 1e-4, (n, 3)) + k for k, n in enumerate((1, 2, 5, 400))}

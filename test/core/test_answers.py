@@ -10,8 +10,8 @@ import scipy.linalg
 from rbc_registration.core import ModelConfig, build_model
 from rbc_registration.core.answers import TargetCorrections
 from rbc_registration.core.constants import UNCORRECTED
-from rbc_registration.core.interpolation import HullTest
-from rbc_registration.core.kriging import KrigingInterpolator
+from rbc_registration.core.interpolation.paper import HullTest
+from rbc_registration.core.interpolation.kriging import KrigingInterpolator
 
 #: (interpolation, decision mode, bias of the field) -> the method targets get. ``cv`` with a
 #: strong field decides kriging while paper is configured: one call evaluates both (the node's

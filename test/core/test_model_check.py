@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from rbc_registration.core import ModelConfig, build_model
-from rbc_registration.core.crossval import fold_groups
+from rbc_registration.core.decision.crossval import fold_groups
 from rbc_registration.core.expected_error import (ExpectedErrorModel, expected_squared_errors,
                                                   pooled_median)
-from rbc_registration.core.groups import group_labels
+from rbc_registration.core.decision.groups import group_labels
 from rbc_registration.core.model_check import (TRUST_FACTOR, TRUST_MIN_UNITS, ModelCheck,
                                                check_model, expected_held_out, units_to_trust)
 from rbc_registration.core.model_planner import calibrated, error_model_from
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 
 
 @pytest.mark.parametrize("d", [2, 3])

@@ -13,16 +13,16 @@ from rbc_registration.core import ModelConfig, build_model
 from rbc_registration.core.constants import DecisionMode
 from rbc_registration.core.expected_error import (BiasPosterior, ExpectedErrorModel,
                                                   expected_squared_errors, pooled_median)
-from rbc_registration.core.kriging import KrigingHyperparameters, KrigingInterpolator
+from rbc_registration.core.interpolation.kriging import KrigingHyperparameters, KrigingInterpolator
 from rbc_registration.core.model_planner import (calibrated, check_expected_error,
                                                  decisive_candidate,
                                                  error_model_from, expected_target_error,
                                                  plan_from_model)
 from rbc_registration.core.planner import (PlanConfig, measurement_repeats, overlap_notes, plan,
                                            unresolved_bias, work_volume)
-from rbc_registration.core.registration import rigid_fit
+from rbc_registration.core.rigid.registration import rigid_fit
 from rbc_registration.core.rigid_tre import rigid_tre_covariance
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 
 
 def grid(n, lo, hi, d):

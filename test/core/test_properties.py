@@ -5,7 +5,7 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from rbc_registration.core import ModelConfig, build_model, restore_rigid_body
-from rbc_registration.core.registration import rigid_fit
+from rbc_registration.core.rigid.registration import rigid_fit
 
 seeds = st.integers(0, 2 ** 31 - 1)
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from rbc_registration.core import ModelConfig, build_model
-from rbc_registration.core.registration import Registration
+from rbc_registration.core.rigid.registration import Registration
 from rbc_registration.core.saved_model import needed_interpolations, parts_of, saved_model
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ from rbc_registration.core.accumulator import FiducialAccumulator
 from rbc_registration.core.records import FiducialRepeats, Measurement, RejectedMeasurement
 from rbc_registration.core.session_sums import SessionSums
 from rbc_registration.core.sessions import estimate_sessions, session_cells
-from rbc_registration.core.synthetic import make_cell
-from rbc_registration.core.synthetic_structure import moved_sessions
+from rbc_registration.core.synthetic.cells import make_cell
+from rbc_registration.core.synthetic.structure import moved_sessions
 
 
 def _acc(d: int = 2) -> FiducialAccumulator:

@@ -6,8 +6,8 @@ import pytest
 
 from rbc_registration.core.sessions import (BumpDetector, estimate_sessions, motion_test,
                                             session_cells, spread_enough)
-from rbc_registration.core.synthetic import make_cell
-from rbc_registration.core.synthetic_structure import moved_sessions
+from rbc_registration.core.synthetic.cells import make_cell
+from rbc_registration.core.synthetic.structure import moved_sessions
 
 
 def _plan(cell):

@@ -11,7 +11,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from rbc_registration import cli
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.bag import typestore
 from rbc_registration.io.bag.reader import read_bag, read_raw
 from rbc_registration.io.bag.records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, SYNTH_PERIOD_S,

@@ -12,8 +12,8 @@ import pytest
 
 from rbc_registration import cli
 from rbc_registration.core.constants import M_PER_MM
-from rbc_registration.core.synthetic import make_cell
-from rbc_registration.core.synthetic_structure import moved_sessions
+from rbc_registration.core.synthetic.cells import make_cell
+from rbc_registration.core.synthetic.structure import moved_sessions
 from rbc_registration.io.bag.records import DEFAULT_TOPICS, OutMessage
 from rbc_registration.io.bag.writer import write_bag
 

@@ -432,7 +432,7 @@ def test_a_tilted_plate_is_named_only_when_the_tilt_distorts_it(tmp_path, degree
     the advice (read in 3D) was refused as coplanar. Now the rule weighs what the 3D fit's tilt
     does to the xy distances against sigma_L0 of the xy points: named at 3 degrees (0.255 against
     0.415 mm; TRE_u 0.44 instead of 0.32 mm), not at 1, with advice that works for a plate."""
-    from rbc_registration.core.synthetic import make_cell
+    from rbc_registration.core.synthetic.cells import make_cell
 
     a = np.radians(degrees)
     turn = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from rbc_registration.cli import main
-from rbc_registration.core.noise import repeat_stats
-from rbc_registration.core.synthetic import make_cell
-from rbc_registration.core.synthetic_structure import make_robot_cell, moved_sessions
+from rbc_registration.core.decision.noise import repeat_stats
+from rbc_registration.core.synthetic.cells import make_cell
+from rbc_registration.core.synthetic.structure import make_robot_cell, moved_sessions
 from rbc_registration.io import csv_stream
 from rbc_registration.io.csv_io import CsvError, read_fiducials
 from rbc_registration.io.csv_stream import FiducialSums, read_fiducial_sums

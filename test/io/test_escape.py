@@ -8,7 +8,7 @@ import unicodedata
 import pytest
 
 from rbc_registration import cli
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io import escape
 from rbc_registration.io.bag.synthetic import cell_messages
 from rbc_registration.io.bag.writer import write_bag

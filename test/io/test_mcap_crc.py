@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.bag import mcap_crc
 from rbc_registration.io.bag.reader import read_bag, read_raw
 from rbc_registration.io.bag.records import BagError

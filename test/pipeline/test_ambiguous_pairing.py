@@ -6,7 +6,7 @@ import pytest
 
 from rbc_registration.core.accumulator import FiducialAccumulator
 from rbc_registration.core.pairing import StampPairer
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.bag.records import SYNTH_PERIOD_S
 from rbc_registration.io.bag.synthetic import cell_messages
 from rbc_registration.pipeline.ingest import Ingest

@@ -12,8 +12,8 @@ import pytest
 from rbc_registration.core.accumulator import FiducialAccumulator
 from rbc_registration.core.pairing import StampPairer
 from rbc_registration.core.records import Measurement
-from rbc_registration.core.synthetic import make_cell
-from rbc_registration.core.synthetic_structure import moved_sessions
+from rbc_registration.core.synthetic.cells import make_cell
+from rbc_registration.core.synthetic.structure import moved_sessions
 from rbc_registration.pipeline import checkpoint as cp
 from rbc_registration.pipeline.ingest import Ingest
 from rbc_registration.pipeline.journal import Journal

@@ -2,15 +2,16 @@
 coordinate of a new fiducial, 1e7 m) made the model impossible to build: the node answered
 ``no model yet: model not built: fiducials are coplanar`` (or "likely the frames are in different
 units") until someone found and disabled it. build_state (node and evaluate) now leaves such
-fiducials out, names them, and serves the model of the others (core/evaluation.py
+fiducials out, names them, and serves the model of the others (core/decision/evaluation.py
 ``gross_misfits``). No rclpy."""
 
 import numpy as np
 import pytest
 
 from rbc_registration.core.accumulator import FiducialAccumulator
-from rbc_registration.core.evaluation import BLUNDER_FACTOR, distance_misfits, gross_misfits
-from rbc_registration.core.synthetic import make_cell
+from rbc_registration.core.decision.evaluation import (BLUNDER_FACTOR, distance_misfits,
+                                                       gross_misfits)
+from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.pipeline.settings import Settings
 from rbc_registration.pipeline.state import build_state
 

@@ -32,7 +32,7 @@ def test_build_state_builds_a_model():
     settings = Settings.from_mapping({"sigma": 1e-4})
     state = build_state(acc.fiducial_set(), settings, 1)
     assert state.error == "" and state.model.ids == acc.fiducial_set().ids
-    assert state.warning == ""     # no fiducial stands out (core/evaluation.py blunders)
+    assert state.warning == ""     # no fiducial stands out (core/decision/evaluation.py blunders)
     assert state.model.sigma_source == "given"
     assert model_config(Settings.from_mapping({})).sigma is None
     # every sigma_L is computed in the building (recompute) thread, not at the first status

@@ -7,7 +7,7 @@ pytest.importorskip("rbc_registration_interfaces.msg")
 
 from geometry_msgs.msg import PointStamped  # noqa: E402
 
-from rbc_registration.core.registration import Registration  # noqa: E402
+from rbc_registration.core.rigid.registration import Registration  # noqa: E402
 from rbc_registration.ros import conversions as conv  # noqa: E402
 
 

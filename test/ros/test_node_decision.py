@@ -172,7 +172,7 @@ class TestGetFiducials(NodeTestBase):
                                                         "residual_uncorrected"))
 
     def test_the_planted_outlier_is_named_in_status_and_diagnostics_until_disabled(self):
-        """As register and evaluate do (core/evaluation.py ``blunders``): a fiducial whose
+        """As register and evaluate do (core/decision/evaluation.py ``blunders``): a fiducial whose
         held-out error stands out is a WARN naming it; disabled, the node is OK again."""
         node = self.make_node()
         self.stream(node)

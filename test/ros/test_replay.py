@@ -202,7 +202,7 @@ def test_replay_rate_must_be_positive(rate, capsys):
 def test_a_topic_no_ros_graph_takes_is_one_clear_line(tmp_path, capsys):
     """A bag with the topic '/my node!/fiducial_pairs' (written by synth-bag before it checked
     --node-name) ended replay in rclpy's InvalidTopicNameException traceback."""
-    from rbc_registration.core.synthetic import make_cell
+    from rbc_registration.core.synthetic.cells import make_cell
     from rbc_registration.io.bag.records import Topics
     from rbc_registration.io.bag.synthetic import cell_messages
     from rbc_registration.io.bag.writer import write_bag

@@ -1,4 +1,4 @@
-"""A synthetic cell (:func:`rbc_registration.core.synthetic.make_cell`, millimetres) as the
+"""A synthetic cell (:func:`rbc_registration.core.synthetic.cells.make_cell`, millimetres) as the
 messages of a recorded bag (metres), for ``synth-bag``, the demo and the tests."""
 
 from __future__ import annotations

@@ -1,0 +1,19 @@
+"""Synthetic cells modelled on the paper's experiments, and what is built from them.
+
+- :mod:`.cells`: the A-like, B-like and RA-like cells (``make_cell``).
+- :mod:`.structure`: cells with structure: fiducials in groups (a robot's poses) and two
+  sessions with a move.
+- :mod:`.experiments`: the paper's Table 1 and Figs 2-5.
+
+The names of :mod:`.cells` are importable from this package too
+(``from rbc_registration.core.synthetic import make_cell``).
+"""
+
+from importlib import import_module
+
+
+def __getattr__(name):
+    """The names of :mod:`.cells`, loaded on first use."""
+    if name.startswith("__"):
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.cells"), name)
