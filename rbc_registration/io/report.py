@@ -10,10 +10,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..core.constants import UNCORRECTED
-from ..core.evaluation import TargetErrors, target_errors
+from ..core.decision.evaluation import TargetErrors, target_errors
 from ..core.model import RbcModel
-from ..core.noise import format_rho
-from ..core.quaternion import quaternion_from_matrix, rpy_from_matrix
+from ..core.decision.noise import format_rho
+from ..core.rigid.quaternion import quaternion_from_matrix, rpy_from_matrix
 from ..pipeline.jsonable import json_number as _num
 from ..pipeline.jsonable import json_vector as _vec
 from ..pipeline.jsonable import registration_json
@@ -201,23 +201,36 @@ def _target_columns(report: dict[str, Any]) -> list[tuple[str, str]]:
     return columns
 
 
+def _point(value: Any) -> str:
+    """A coordinate of a point to use, 9 significant digits (to copy into a robot program)."""
+    return "n/a" if value is None else f"{float(value):.9g}"
+
+
 def _target_lines(report: dict[str, Any], u: str) -> list[str]:
-    """The target table, every column named by its method, and its summary."""
+    """The target table, every column named by its method, and its summary: the point to use
+    (``destination``) with its expected error and bound, then the configured interpolation's
+    correction, the hull and, with truth, the errors of each method."""
     used, configured = report["decision"]["method"], report["interpolation"]
     truth = "tre_u" in report["targets"][0]
     cols = _target_columns(report) if truth else []
-    heads = ([f"|eps| {configured}", "hull", f"exp. TRE {used}", f"95% bound {used}"]
+    axes = "xyz"[:report["dim"]]
+    heads = ([f"{a} {used}" for a in axes] + [f"exp. TRE {used}", f"95% bound {used}",
+                                              f"|eps| {configured}", "hull"]
              + [f"TRE {m}" for m, _ in cols] + ([f"dTRE {configured}"] if truth else []))
-    widths = [max(5 if h == "hull" else 10, len(h)) for h in heads]
-    lines = ["", f"  targets ({u}): the points to use are {used}'s (the decision); |eps| is "
-                 f"{configured}'s (the configured interpolation)"
+    widths = [12 if k < len(axes) else 5 if h == "hull" else max(10, len(h))
+              for k, h in enumerate(heads)]
+    widths = [max(w, len(h)) for w, h in zip(widths, heads)]
+    lines = ["", f"  targets ({u}): the points to use are {used}'s (the decision): "
+                 f"{', '.join(axes)} in the destination frame, their expected error and 95% "
+                 f"bound; |eps| is {configured}'s (the configured interpolation)"
                  + (f"; dTRE {configured} = TRE {configured} - TRE {UNCORRECTED} (eq. 3)"
                     if truth else ""),
              f"  {'target':<10} " + " ".join(f"{h:>{w}}" for h, w in zip(heads, widths))]
     for t in report["targets"]:
         eps = float(np.linalg.norm(np.array(t["correction"], float)))
-        cells = [f"{eps:.4g}", "in" if t["inside_hull"] else "OUT", _fmt(t["expected_tre"]),
-                 _fmt(t["tre_bound"])]
+        cells = ([_point(v) for v in t["destination"]]
+                 + [_fmt(t["expected_tre"]), _fmt(t["tre_bound"]), f"{eps:.4g}",
+                    "in" if t["inside_hull"] else "OUT"])
         if truth and t["tre_u"] is None:        # this target has no truth
             cells += ["n/a"] * (len(cols) + 1)
         elif truth:

@@ -11,6 +11,7 @@ import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -176,20 +177,81 @@ def test_every_column_names_its_method_and_holds_that_methods_figures(cell, caps
     # the header line says which interpolation the |eps| column is, and that targets get the
     # decision's method
     assert f"configured interpolation {configured}" in out
-    assert f"the points to use are {used}'s (the decision)" in out
-    assert f"|eps| {configured}" in head and f"exp. TRE {used}" in head
-    assert f"95% bound {used}" in head
+    assert f"the points to use are {used}'s (the decision): x, y, z in the destination " \
+           "frame" in out
+    # the point to use first, beside its expected error and bound, all of the decision's method
+    assert re.match(rf"\s*target\s+x {used}\s+y {used}\s+z {used}\s+exp\. TRE {used}\s+"
+                    rf"95% bound {used}\s+\|eps\| {configured}\s+hull\s", head), head
     tre_heads = re.findall(r"(?<!d)TRE (\S+)", head.replace("exp. TRE", ""))
     assert tre_heads[0] == used and len(tre_heads) == len(set(tre_heads))
     assert set(tre_heads) == {used, UNCORRECTED, configured}
     key = {used: "tre", UNCORRECTED: "tre_u", configured: "tre_c"}
-    for row, target in zip(rows, rep["targets"]):
+    assert len(rows) == len(rep["targets"]) == 6
+    for row, target in zip(rows, rep["targets"], strict=True):
         assert row[0] == target["id"]
+        # the point to use as --json has it, 9 significant digits (the file's unit, mm)
+        np.testing.assert_allclose([float(v) for v in row[1:4]], target["destination"],
+                                   rtol=1e-8, atol=1e-6)
+        assert float(row[4]) == pytest.approx(target["expected_tre"], rel=5e-4)
+        assert float(row[5]) == pytest.approx(target["tre_bound"], rel=5e-4)
+        assert float(row[6]) == pytest.approx(np.linalg.norm(target["correction"]), rel=5e-4)
+        assert row[7] == ("in" if target["inside_hull"] else "OUT")
         for k, method in enumerate(tre_heads):
-            assert float(row[5 + k]) == pytest.approx(target[key[method]], rel=5e-4)
-        assert float(row[3]) == pytest.approx(target["expected_tre"], rel=5e-4)
+            assert float(row[8 + k]) == pytest.approx(target[key[method]], rel=5e-4)
     summary = next(x for x in out.splitlines() if "median TRE" in x)
     assert summary.strip().startswith(f"median TRE {used} ") and "TRE_" not in summary
+
+
+def test_targets_without_truth_print_the_point_to_use_in_the_files_unit(cell, capsys, tmp_path):
+    """The point to use is printed without truth too, in the unit of the files: the same cell
+    in metres prints the millimetre points / 1000."""
+    rep_mm = _register(capsys, cell, "--json", tmp_path / "mm.json")
+    rep_mm = json.loads((tmp_path / "mm.json").read_text())
+    metres = tmp_path / "metres"
+    metres.mkdir()
+    fid = np.genfromtxt(cell / "fiducials.csv", delimiter=",", names=True, dtype=None,
+                        encoding="utf-8")
+    write_fiducials(metres / "fiducials.csv", list(fid["id"]),
+                    [np.array([[r["wx"], r["wy"], r["wz"]]]) / 1000 for r in fid],
+                    [np.array([[r["dx"], r["dy"], r["dz"]]]) / 1000 for r in fid])
+    tgt = np.genfromtxt(cell / "targets.csv", delimiter=",", names=True, dtype=None,
+                        encoding="utf-8")
+    write_targets(metres / "targets.csv", list(tgt["id"]),
+                  np.stack([tgt["wx"], tgt["wy"], tgt["wz"]], -1) / 1000)
+    out = _register(capsys, metres, "--unit", "m", "--json", tmp_path / "m.json").out
+    rep_m = json.loads((tmp_path / "m.json").read_text())
+    assert rep_m["decision"]["method"] == rep_mm["decision"]["method"] == "kriging"
+    head, rows = _table(out)
+    assert "TRE kriging" not in head.replace("exp. TRE", "") and "x kriging" in head
+    assert "targets (m): the points to use are kriging's" in out
+    assert len(rows) == 6
+    for row, t_m, t_mm in zip(rows, rep_m["targets"], rep_mm["targets"], strict=True):
+        assert row[0] == t_m["id"] == t_mm["id"] and len(row) == 8
+        np.testing.assert_allclose([float(v) for v in row[1:4]], t_m["destination"], rtol=1e-8)
+        np.testing.assert_allclose([float(v) for v in row[1:4]],
+                                   np.array(t_mm["destination"]) / 1000, rtol=1e-6)
+
+
+def test_a_2d_table_prints_the_points_x_and_y(capsys, tmp_path):
+    plate = Path(cli.__file__).resolve().parents[2] / "examples" / "plate2d"
+    capsys.readouterr()
+    assert cli.main(["register", str(plate / "fiducials.csv"), "--targets",
+                     str(plate / "targets.csv"), "--json", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    rep = json.loads((tmp_path / "r.json").read_text())
+    used = rep["decision"]["method"]
+    head = next(x for x in out.splitlines() if x.strip().startswith("target "))
+    assert re.match(rf"\s*target\s+x {used}\s+y {used}\s+exp\. TRE {used}\s", head), head
+    assert "x, y in the destination frame" in out
+    rows = {x.split()[0]: x.split() for x in out.splitlines()[out.splitlines().index(head) + 1:]
+            if x.strip()}
+    assert rep["targets"]
+    for target in rep["targets"]:
+        row = rows[target["id"]]
+        np.testing.assert_allclose([float(v) for v in row[1:3]], target["destination"],
+                                   rtol=1e-8, atol=1e-6)
+        assert float(row[3]) == pytest.approx(target["expected_tre"], rel=5e-4)
+        assert float(row[4]) == pytest.approx(target["tre_bound"], rel=5e-4)
 
 
 def test_leave_one_out_names_its_methods(cell, capsys):
