@@ -12,9 +12,10 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ..core.constants import METRES_PER_UNIT
 from ..io.escape import terminal
 from .options import (add_model_options, non_negative, output_file, refuse_outputs_onto_inputs,
-                      warn, warn_model)
+                      unit_name, warn, warn_model)
 
 #: Suggestions made when ``--count`` is not given (fewer when there are fewer candidates).
 DEFAULT_COUNT = 5
@@ -59,8 +60,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--target-repeats", type=int, metavar="N",
                    help="measurements to be averaged into each target (default: the median "
                         "rows per id of TARGETS.csv; without it, as --candidate-repeats)")
-    p.add_argument("--unit", default="mm",
-                   help="unit of the files (default mm): named in the report")
+    p.add_argument("--unit", default="mm", type=unit_name,
+                   help=f"unit of the files (default mm): {', '.join(METRES_PER_UNIT)} (µm is "
+                        f"um, inch is in), as register takes; named in the report")
     p.add_argument("--json", type=output_file, metavar="OUT.json", help="write the plan as JSON")
     p.add_argument("--figure", type=output_file, metavar="OUT.png",
                    help="draw the candidates by expected gain and the expected error against "

@@ -303,7 +303,22 @@ def test_export_unit_of_a_report_without_one_takes_every_register_unit(cell, cap
                                * METRES_PER_UNIT[length_unit(spelling)], rtol=1e-12)
 
 
-@pytest.mark.parametrize("command", ["register", "export"])
+@pytest.mark.parametrize("spelling", ALL_SPELLINGS)
+def test_plan_takes_the_units_register_takes(cell, capsys, tmp_path, spelling):
+    """``plan --unit`` reads a unit as ``register`` does: an alias is its unit, in the text and
+    the JSON."""
+    capsys.readouterr()
+    assert cli.main(["plan", str(cell / "fiducials.csv"), "--candidates",
+                     str(cell / "candidates.csv"), "--count", "1", "--unit", spelling,
+                     "--json", str(tmp_path / "p.json")]) == 0
+    out = capsys.readouterr().out
+    unit = length_unit(spelling)
+    assert json.loads((tmp_path / "p.json").read_text())["unit"] == unit
+    assert f"lengths in {unit}\n" in out, out
+    assert re.search(rf"expected median target error now +[0-9.e+-]+ {unit}\n", out), out
+
+
+@pytest.mark.parametrize("command", ["register", "export", "plan"])
 def test_an_unknown_unit_is_one_line_naming_the_units(cell, capsys, command, tmp_path):
     source = cell / ("fiducials.csv" if command == "register" else "r.json")
     with pytest.raises(SystemExit) as exc:
