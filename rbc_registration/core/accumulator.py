@@ -48,7 +48,7 @@ from numpy.typing import ArrayLike
 
 from .measurement_checks import (MAX_ID_LENGTH, check_age, check_coords, check_label,
                                  check_new_id, check_record_values, check_stamp)
-from .noise import RepeatStats
+from .decision.noise import RepeatStats
 from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSet, Measurement,
                       Record, RejectedMeasurement, quote)
 from .repeats import repeat_outlier
@@ -380,7 +380,8 @@ class FiducialAccumulator:
             n_measurements=self.n_measurements,
             groups=groups if any(groups) else None, sessions=plan,
             first_stamps=tuple(self._first_stamps[f] for f in ids),
-            session_starts=self.sessions.starts() if plan is not None else ())
+            session_starts=self.sessions.starts() if plan is not None else (),
+            session=self.sessions.resolve(""))
 
     def restore(self, records: Iterable[Record]) -> list[str]:
         """Clear, then commit ``records`` in order: the state after the same accepted

@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
 from .constants import REJECT_REASONS
-from .noise import RepeatStats
+from .decision.noise import RepeatStats
 
 if TYPE_CHECKING:   # scipy.stats is loaded where sessions are estimated, not with the records
     from .sessions import SessionPlan
@@ -103,6 +103,9 @@ class FiducialSet:
     first_stamps: tuple[float, ...] = ()
     #: Per session (``sessions``' names) the stamp of its first measurement [s].
     session_starts: tuple[tuple[str, float], ...] = ()
+    #: The session current when the set was taken, whose working frame ``working`` is in
+    #: (the reference of ``sessions``); "" when not known.
+    session: str = ""
 
     def without(self, index: ArrayLike) -> "FiducialSet":
         """This set without the fiducials at positions ``index`` (they move to
@@ -118,7 +121,7 @@ class FiducialSet:
                            self.disabled_ids, self.n_measurements,
                            self.left_out_ids + tuple(f for f, k in zip(self.ids, keep) if not k),
                            kept(self.groups), self.sessions, kept(self.first_stamps) or (),
-                           self.session_starts)
+                           self.session_starts, self.session)
 
 
 class FiducialRepeats:

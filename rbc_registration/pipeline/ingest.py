@@ -15,7 +15,7 @@ from ..core.accumulator import (FiducialAccumulator, FiducialSet, Measurement, R
                                 RejectedMeasurement)
 from ..core.constants import DESTINATION, WORKING
 from ..core.pairing import DroppedPoint, PointPair, StampPairer
-from ..core.scale import dropped_z_warning
+from ..core.rigid.scale import dropped_z_warning
 from .checkpoint import checkpoint_text, replay, resume
 from .journal import Journal
 from .residuals import FiducialSummary
@@ -395,8 +395,15 @@ class Ingest:
         with self._lock:
             return self._acc.fiducial_set()
 
+    def current_session(self) -> str:
+        """The session a measurement without one goes to now (:mod:`~rbc_registration.core.
+        session_sums`): the one targets are measured in. Without the lock (one attribute
+        read), so that ``~/correct_target`` never waits for an ingestion batch."""
+        return self._acc.sessions.resolve("")
+
     def dropped_z_warning(self) -> str:
-        """In 2D, :func:`~rbc_registration.core.scale.dropped_z_warning` (lengths in metres) of
+        """In 2D, :func:`~rbc_registration.core.rigid.scale.dropped_z_warning` (lengths in metres)
+        of
         the enabled fiducials' first measurements accepted since this process started (or the
         last reset): the journal keeps x, y only, so measurements restored from it are not
         looked at. "" when there is nothing to say."""

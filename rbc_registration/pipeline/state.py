@@ -10,8 +10,8 @@ from typing import Optional
 import numpy as np
 
 from ..core.accumulator import FiducialSet
-from ..core.evaluation import describe_misfits, gross_misfits
-from ..core.kriging import KrigingHyperparameters
+from ..core.decision.evaluation import describe_misfits, gross_misfits
+from ..core.interpolation.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
 from ..core.session_sums import AUTO_SESSION_PREFIX
 from ..core.warnings import model_warnings
@@ -24,7 +24,7 @@ class ModelState:
     and settings it was built from, and when (``stamp_ns``, node clock; 0 = never).
 
     ``warning``: what to check in a model that is served, one line, "" when nothing: a fiducial
-    whose held-out error stands out (:func:`~rbc_registration.core.evaluation.blunders`, a
+    whose held-out error stands out (:func:`~rbc_registration.core.decision.evaluation.blunders`, a
     typo'd coordinate or a wrong hole; errors in metres), one point under two or more ids
     (:func:`~rbc_registration.core.repeats.twin_groups`), sessions moved or kept apart
     (:func:`session_warning`), fiducials that look grouped though no group was given
@@ -135,6 +135,18 @@ def session_warning(fiducials: FiducialSet) -> str:
                 f"{', '.join(live)}" if live else "")
     return (plan.warning("m") + detected
             + (f" (sessions start at stamp {when})" if when else ""))
+
+
+def session_mismatch(state: ModelState, current: str) -> str:
+    """Why targets of the session ``current`` cannot be answered from ``state``'s model: the
+    model was built in another session's working frame (a new session opened, declared or by
+    a detected move, and the rebuild is still to come); "" when they can."""
+    fiducials = state.fiducials
+    if fiducials is None or not fiducials.session or fiducials.session == current:
+        return ""
+    return (f"targets are in session {current!r}, the model is still in session "
+            f"{fiducials.session!r}'s working frame: retry once ~/status shows the rebuild "
+            "(n_pending 0)")
 
 
 def _kept_apart_hint(fiducials: FiducialSet) -> str:

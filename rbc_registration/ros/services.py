@@ -17,10 +17,10 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetF
 import re
 
 from ..core.records import RejectedMeasurement
-from ..core.scale import unit_mismatch
+from ..core.rigid.scale import unit_mismatch
 from ..pipeline.residuals import fiducial_residuals
 from ..pipeline.snapshot import snapshot_path
-from ..pipeline.state import EMPTY_STATE
+from ..pipeline.state import EMPTY_STATE, session_mismatch
 from . import conversions as conv
 from . import samples, saved
 from .markers import markers_msg
@@ -77,6 +77,9 @@ class ServicesMixin:
             label = model.decision.method + saved.FROM_FILE
         if model is None:
             return [], f"no model yet: {state.error}", ""
+        moved = "" if label else session_mismatch(state, self._ingest.current_session())
+        if moved:
+            return [], moved, ""
         try:
             points, z = conv.targets_to_array(targets, s.working_frame, s.dimension)
             tc = model.correct(points)

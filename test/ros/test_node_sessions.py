@@ -3,7 +3,8 @@ part of it and every target measured again. Streamed once with the sessions decl
 ``FiducialPair.session`` and once undeclared with a move well beyond the noise (the node opens
 ``auto-1`` itself): ``~/status`` and ``/diagnostics`` WARN naming the move and when, and
 ``~/correct_target`` answers (targets in the current session) equal the offline pipeline's on
-the same data, before and after a restart from the journal. ``~/take_sample`` takes a group.
+the same data, before and after a restart from the journal. A session opened after the model
+was built: targets wait for its model. ``~/take_sample`` takes a group.
 
 DDS stays on loopback: test/conftest.py sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a
 per-process ROS_DOMAIN_ID, which the node process inherits.
@@ -26,13 +27,13 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from std_srvs.srv import Trigger  # noqa: E402
 
 from rbc_registration.core.constants import M_PER_MM  # noqa: E402
-from rbc_registration.core.synthetic import make_cell  # noqa: E402
-from rbc_registration.core.synthetic_structure import moved_sessions  # noqa: E402
+from rbc_registration.core.synthetic.cells import make_cell  # noqa: E402
+from rbc_registration.core.synthetic.structure import moved_sessions  # noqa: E402
 from rbc_registration.pipeline.inputs import PairMessage  # noqa: E402
 from rbc_registration.pipeline.offline import evaluate_inputs, settings_for  # noqa: E402
 from rbc_registration.ros.services import rebuild_requested_ns  # noqa: E402
-from ros_helpers import (point_xyz, start_test_node, stop_process, target_msg,  # noqa: E402
-                         wait_for)
+from ros_helpers import (pair_msg, point_xyz, start_test_node, stop_process,  # noqa: E402
+                         target_msg, wait_for)
 from test_node import NodeTestBase  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -191,3 +192,69 @@ class TestTakeSampleGroup(NodeTestBase):
             in r.message
         assert node.status().n_rejected_conflict == 1 and node.status().n_measurements == 1
         assert node._ingest.fiducial_set().groups == ("pose1",)
+
+
+class TestNewSession(NodeTestBase):
+    """A session opened after the model was built (in-process node, rebuilds only on
+    ~/recompute): ~/correct_target refuses until the model is of the new session, a new session
+    that shares too few fiducials gives no model and says what to measure, and once it shares
+    enough the answers are the offline pipeline's."""
+
+    def correct(self, node, xyz):
+        return self.srv(node, CorrectTarget, "correct_target",
+                        CorrectTarget.Request(target=target_msg(xyz)))
+
+    def test_targets_wait_for_the_model_of_the_new_session(self):
+        node = self.make_node(debounce_period=30.0, **FRAMES)
+        cell = self.cell
+        self.stream(node)
+        self.recompute(node)
+        target = cell["targets"][0]
+        assert self.correct(node, target).success
+        shift = np.array([1e-3, -6e-4, 4e-4])       # the tracker moved by ~1.2 mm
+        pub = self.publisher(node, FiducialPair, "fiducial_pairs")
+        later = [0, 5, 17, 30, 47]                 # holes of the grid, spread
+
+        def send(rows):
+            before = node.status().n_measurements
+            for k in rows:
+                msg = pair_msg(cell, k, stamp_s=1000.0 + k)
+                w = cell["working"][k] + shift
+                msg.working_point = Point(x=float(w[0]), y=float(w[1]), z=float(w[2]))
+                msg.session = "after lunch"
+                pub.publish(msg)
+            wait_for(lambda: node.status().n_measurements == before + len(rows),
+                     what="the new session's measurements")
+
+        send(later[:1])
+        r = self.correct(node, target)
+        assert not r.success and r.message == (
+            "targets are in session 'after lunch', the model is still in session '1''s "
+            "working frame: retry once ~/status shows the rebuild (n_pending 0)")
+        self.recompute(node)
+        r = self.correct(node, target)
+        assert not r.success and "1 enabled fiducials, need min_fiducials=4 in session " \
+            "'after lunch'" in r.message and "measure at least 4 fiducials" in r.message
+        send(later[1:])
+        state = self.recompute(node)
+        assert state.fiducials.session == "after lunch"
+        assert "session '1' moved against 'after lunch'" in state.warning
+        r = self.correct(node, target + shift)
+        assert r.success, r.message
+        rows = list(range(len(cell["fid"])))
+        off = evaluate_inputs(
+            [PairMessage(k, 100.0 + k, str(cell["ids"][cell["fid"][k]]),
+                         tuple(map(float, cell["working"][k])), FRAMES["working_frame"],
+                         tuple(map(float, cell["destination"][k])), FRAMES["destination_frame"])
+             for k in rows]
+            + [PairMessage(0, 1000.0 + k, str(cell["ids"][cell["fid"][k]]),
+                           tuple(map(float, cell["working"][k] + shift)),
+                           FRAMES["working_frame"], tuple(map(float, cell["destination"][k])),
+                           FRAMES["destination_frame"], session="after lunch")
+               for k in later], settings_for(3, {**FRAMES, "debounce_period": 30.0}))
+        tc = off.model.correct((target + shift)[None])
+        np.testing.assert_allclose(point_xyz(r.destination.point), tc.destination[0],
+                                   atol=1e-9)
+        np.testing.assert_allclose(point_xyz(r.uncorrected.point), tc.uncorrected[0],
+                                   atol=1e-9)
+        self.ros.client.destroy_publisher(pub)
