@@ -9,9 +9,12 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..core.constants import METRES_PER_UNIT
+from ..core.constants import METRES_PER_UNIT, UNCORRECTED
 from ..io.escape import terminal
 from .options import output_file, refuse_outputs_onto_inputs, unit_name
+
+#: The registrations of a model ``--registration`` chooses from.
+REGISTRATIONS = ("corrected", UNCORRECTED)
 
 #: Largest report or snapshot read (a snapshot of 100,000 fiducials is ~30 MB).
 MAX_SOURCE_BYTES = 256 << 20
@@ -26,8 +29,9 @@ def add_parser(sub: Any) -> None:
                           "report")
     exp.add_argument("--out", type=output_file, default=Path("calibration.yaml"),
                      help="the calibration file to write (default calibration.yaml)")
-    exp.add_argument("--registration", choices=("corrected", "uncorrected"), default="corrected",
-                     help="which registration of the model (default corrected)")
+    exp.add_argument("--registration", choices=REGISTRATIONS,
+                     help="which registration of the model (default: the decision's, corrected "
+                          "only when its corrections are applied); the output says which")
     exp.add_argument("--parent-frame", help="destination frame (default: the snapshot's or an "
                                             "evaluate report's; a register report: world, "
                                             "with a warning)")
@@ -76,13 +80,15 @@ def run(args: argparse.Namespace) -> int:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{where}: not valid JSON: {exc}") from None
+    registration, which = _registration(data, args.registration)
     cal = calibration_from_document(
-        data, where, args.registration, parent_frame=args.parent_frame,
+        data, where, registration, parent_frame=args.parent_frame,
         child_frame=args.child_frame, unit=args.unit, mtime=mtime,
         note=lambda line: print(f"rbc-registration export: warning: {terminal(line)}",
                                 file=sys.stderr))
     write_calibration(str(args.out), cal)
     print(f"wrote {terminal(args.out)}")
+    print(which)
     print(expected_errors(cal))
     print(static_transform_publisher_command(cal))
     print()
@@ -95,3 +101,22 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {terminal(args.urdf)}: xacro:include it, or paste the joint into the URDF")
         print(urdf_joint(cal, args.joint_name), end="")
     return 0
+
+
+def _registration(data: Any, given: str | None) -> tuple[str, str]:
+    """The registration to export and the line saying which: ``given`` (``--registration``), or
+    the decision's (``corrected`` only when the source's ``decision.apply`` is true). For a
+    source without a readable decision the line is not printed: reading it says what is wrong
+    (its ``decision``, or the registration missing)."""
+    decision = data.get("decision") if isinstance(data, dict) else None
+    if not isinstance(decision, dict) or not isinstance(decision.get("apply"), bool):
+        return given or "corrected", ""
+    applied = decision["apply"]
+    chosen = "corrected" if applied else UNCORRECTED
+    method = terminal(str(decision.get("method", "?")))
+    its = f"{method}, corrections {'applied' if applied else 'not applied'}"
+    if given is None:
+        return chosen, (f"registration {chosen}: the decision's ({its}); --registration "
+                        f"{'uncorrected' if applied else 'corrected'} exports the other")
+    return given, (f"registration {given} (--registration); the decision's is {chosen} "
+                   f"({its})")

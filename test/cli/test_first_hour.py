@@ -329,6 +329,49 @@ def test_an_unknown_unit_is_one_line_naming_the_units(cell, capsys, command, tmp
     assert all(unit in err for unit in METRES_PER_UNIT), err
 
 
+# --- export: the decision's registration ----------------------------------------------------
+
+@pytest.mark.parametrize("options, applied", [((), True), (("--decision", "off"), False),
+                                              (("--decision", "on"), True)])
+def test_export_writes_the_registration_the_decision_chose(cell, capsys, tmp_path, options,
+                                                           applied):
+    """Without ``--registration``, export writes ``corrected`` only when the decision applies
+    corrections, and says which; ``--registration`` writes the other, naming the decision's."""
+    _register(capsys, cell, *options, "--json", tmp_path / "r.json")
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["decision"]["apply"] is applied
+    chosen, other = ("corrected", UNCORRECTED) if applied else (UNCORRECTED, "corrected")
+    assert rep["registration"]["name"] == chosen          # what register printed
+    for given, written in ((None, chosen), (other, other), (chosen, chosen)):
+        out_file = tmp_path / f"{given}.yaml"
+        assert cli.main(["export", str(tmp_path / "r.json"), "--out", str(out_file)]
+                        + ([] if given is None else ["--registration", given])) == 0
+        lines = capsys.readouterr().out.splitlines()
+        cal = read_calibration(str(out_file))
+        assert cal.registration == written
+        np.testing.assert_allclose(cal.translation,
+                                   np.array(rep[written]["translation"]) * 1e-3, rtol=1e-12)
+        its = (f"{rep['decision']['method']}, corrections "
+               f"{'applied' if applied else 'not applied'}")
+        assert lines[1] == (f"registration {chosen}: the decision's ({its}); --registration "
+                            f"{other} exports the other" if given is None else
+                            f"registration {given} (--registration); the decision's is "
+                            f"{chosen} ({its})"), lines
+
+
+def test_an_unapplied_decision_exports_the_transform_register_printed(cell, capsys, tmp_path):
+    """A decision that applies no corrections (``--decision off``): export's default is the
+    uncorrected transform, the one register printed as the registration."""
+    _register(capsys, cell, "--decision", "off", "--json", tmp_path / "r.json")
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert cli.main(["export", str(tmp_path / "r.json"), "--out", str(tmp_path / "c.yaml")]) == 0
+    cal = read_calibration(str(tmp_path / "c.yaml"))
+    np.testing.assert_allclose(cal.translation, np.array(rep["registration"]["translation"])
+                               * 1e-3, rtol=1e-12)
+    np.testing.assert_allclose(cal.transform_matrix()[:3, :3],
+                               _rot(*np.radians(rep["registration"]["rpy_deg"])), atol=1e-9)
+
+
 # --- export --urdf ---------------------------------------------------------------------------
 
 def _export_urdf(cell, capsys, tmp_path, *extra):
