@@ -52,6 +52,7 @@ class PublishingMixin:
     get_clock: Any
     get_logger: Any
     get_name: Any
+    context: Any
 
     def _serve_model(self, state: ModelState, disabled_points: Mapping[str, Sequence[float]],
                      generation: int) -> Optional[ModelState]:
@@ -63,10 +64,37 @@ class PublishingMixin:
         takes it too). Then, under one hold of the lock, the model is swapped in and its
         transforms, ``/tf_static`` and markers are published: a ``~/status`` whose
         ``last_recompute`` is this rebuild (the documented sign that a rebuild is done) is
-        published after them, never before."""
+        published after them, never before. Once the node's context is shut down (Ctrl-C or
+        SIGTERM during the rebuild) nothing more is published or saved: ``None``."""
         s = self._settings
         now = self.get_clock().now().to_msg()
         markers = markers_msg(state, s, now, disabled_points)
+        try:
+            previous = self._swap_and_publish(state, markers, generation, now)
+        except Exception:
+            if self._shut_down():
+                return None     # Ctrl-C or SIGTERM during the rebuild: nothing more to publish
+            raise
+        if previous is None:
+            return None
+        self._publish_status()
+        self._plan_model(state)   # ~/status expected_target_error follows from its thread
+        if s.state_dir:
+            self._snapshots.submit((state, generation))   # serialised and written in its thread
+        return previous
+
+    def _shut_down(self) -> bool:
+        """True once the node's context is shut down: rclpy's SIGINT / SIGTERM handler does it at
+        once, while a rebuild may still run in the recompute thread (joined in destroy_node),
+        and whatever that thread publishes then fails on the invalid context."""
+        return not self.context.ok()
+
+    def _swap_and_publish(self, state: ModelState, markers: Any, generation: int,
+                          now: Any) -> Optional[ModelState]:
+        """Under one hold of the publishing lock, swap ``state`` in and publish its transforms,
+        ``/tf_static`` and markers; returns the model served before, or ``None`` when ``~/reset``
+        came since."""
+        s = self._settings
         with self._pub_lock:
             if generation != self._generation:
                 return None     # reset meanwhile: neither served, published nor saved
@@ -87,10 +115,6 @@ class PublishingMixin:
                 self._tf_transforms = {}
                 self._publish_tf()
             self._pub_markers.publish(markers)
-        self._publish_status()
-        self._plan_model(state)   # ~/status expected_target_error follows from its thread
-        if s.state_dir:
-            self._snapshots.submit((state, generation))   # serialised and written in its thread
         return previous
 
     def _on_snapshot_error(self, exc: BaseException) -> None:
@@ -158,9 +182,13 @@ class PublishingMixin:
             health = health_of(status, self._health, self._ingest.journal_error,
                                loaded.describe() if loaded is not None else "", state.warning,
                                self.get_clock().ros_time_is_active)
-            self._pub_status.publish(status)
-            self._pub_diagnostics.publish(diagnostics_msg(
-                status, self.get_fully_qualified_name(), status.header.stamp, health))
+            try:
+                self._pub_status.publish(status)
+                self._pub_diagnostics.publish(diagnostics_msg(
+                    status, self.get_fully_qualified_name(), status.header.stamp, health))
+            except Exception:
+                if not self._shut_down():   # shut down: the recompute or planning thread's
+                    raise                   # last status has no one to go to
 
     def _save(self, item: tuple[ModelState, int]) -> str:
         """Write the snapshot of ``(state, generation)`` unless ``~/reset`` came since."""
