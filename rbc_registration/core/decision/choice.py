@@ -65,9 +65,9 @@ RELEVANT_GAIN = 0.05
 #: fiducial's noisy correction, and between two methods that both help, the held-out medians of a
 #: few dozen fiducials differ by chance. Measured on the RA-like cell (random subsets of 11-60
 #: fiducials, 10 seeds, single measurements; benchmarks/decision_subsets.py): the smallest median
-#: picked ``paper`` for 24 of 100 sets; this rule keeps kriging in 20 of them (in the other 4
-#: kriging did not beat the uncorrected registration), and kriging's target TRE was lower in 18
-#: of the 20, by up to 0.031 mm (benchmarks/RESULTS.md, "Decision").
+#: picks ``paper`` for 25 of 100 sets; this rule keeps kriging in 20 of them (the other 5 stay
+#: ``paper``), and kriging's target TRE is lower in 17 of the 20, by up to 0.030 mm
+#: (benchmarks/RESULTS.md, "Which correction on few fiducials").
 PREFERENCE = ("kriging", "paper")
 
 
