@@ -31,7 +31,7 @@ def sigterm_and_wait() -> None:
 
 
 if os.environ.get("RBC_SIGTERM_AT", "make") == "spin":
-    class SignalledExecutor(node_module.SingleThreadedExecutor):
+    class SignalledExecutor(node_module.LaneExecutor):
         def spin(self) -> None:
             for _ in range(5):
                 self.spin_once(timeout_sec=0.05)
@@ -39,7 +39,7 @@ if os.environ.get("RBC_SIGTERM_AT", "make") == "spin":
             sigterm_and_wait()
             self.spin_once()
 
-    node_module.SingleThreadedExecutor = SignalledExecutor
+    node_module.LaneExecutor = SignalledExecutor
 else:
     real = node_module.RegistrationNode
 
