@@ -145,18 +145,19 @@ class Client:
         self.node.destroy_node()
 
 
-def start(client: Client, state_dir: str, log, n_expected: int) -> dict:
-    """Start the node, wait for its services and a model of ``n_expected`` measurements."""
+def start(client: Client, state_dir: str, log, n_expected: int, timeout: float = 300) -> dict:
+    """Start the node, wait (at most ``timeout`` s) for its services and a model of
+    ``n_expected`` measurements."""
     from rbc_registration.ros.process import start_node
 
     client.statuses.clear()
     t0 = time.monotonic()
     proc = start_node(client.name, {"state_dir": state_dir, "debounce_period": 0.05}, log=log)
-    up = client.first_answer(300) - t0
+    up = client.first_answer(timeout) - t0
     if n_expected == 0:
         return {"proc": proc, "up": up, "rss": proc_mb(proc.pid, "VmRSS")}
     model = client.spin_until(lambda: client.statuses and client.statuses[-1].model_valid
-                              and client.statuses[-1].n_measurements == n_expected, 300,
+                              and client.statuses[-1].n_measurements == n_expected, timeout,
                               "the model") - t0
     return {"proc": proc, "up": up, "model": model, "rss": proc_mb(proc.pid, "VmRSS"),
             "hwm": proc_mb(proc.pid, "VmHWM"), "n": client.statuses[-1].n_measurements}
@@ -185,7 +186,7 @@ def bench(pairs: int, live_pairs: int) -> None:
     try:
         empty = start(client, os.path.join(work, "empty"), log, 0)
         kill(empty)
-        first = start(client, state_dir, log, pairs)
+        first = start(client, state_dir, log, pairs, timeout=7200)   # a whole replay
         client.spin_until(lambda: os.path.exists(checkpoint), 120, "the checkpoint")
         kill(first)
         live = start(client, state_dir, log, pairs)
