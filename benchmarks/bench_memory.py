@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from rbc_registration.core.accumulator import FiducialAccumulator  # noqa: E402
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator  # noqa: E402
 from soak_procs import cell_truth, to_working  # noqa: E402  (the soak's cell)
 
 REBUILD_EVERY = 400  # messages: 2 s at 200/s, the longest debounce (10 x 0.2 s)

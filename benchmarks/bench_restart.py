@@ -45,7 +45,7 @@ HEADER = {"working_frame": "tracker", "destination_frame": "world", "dimension":
 
 def write_journal(state_dir: str, pairs: int) -> float:
     """``pairs`` accepted measurements in ``state_dir``'s journal; returns its size [MB]."""
-    from rbc_registration.core.accumulator import FiducialAccumulator
+    from rbc_registration.core.measurements.accumulator import FiducialAccumulator
     from rbc_registration.pipeline.journal import Journal
 
     truth = cell_truth()

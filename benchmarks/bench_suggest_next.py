@@ -21,7 +21,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from rbc_registration.core.accumulator import FiducialAccumulator  # noqa: E402
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator  # noqa: E402
 from rbc_registration.core.synthetic.cells import make_cell  # noqa: E402
 from rbc_registration.pipeline.planning import planning_state, suggest  # noqa: E402
 from rbc_registration.pipeline.settings import Settings  # noqa: E402

@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from rbc_registration.core.model import ModelConfig, build_model
-from rbc_registration.core.sessions import estimate_sessions, session_cells
+from rbc_registration.core.measurements.sessions import estimate_sessions, session_cells
 from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.core.synthetic.structure import make_robot_cell, moved_sessions
 

@@ -1,5 +1,6 @@
-"""Every module of rbc_registration.core (its root and its parts) is imported by at least one test (by its dotted name or
-``from rbc_registration.core import <module>``), so no part of the method goes untested."""
+"""Every module of rbc_registration.core (its root and its parts) is imported by at least one test
+(by its dotted name or ``from rbc_registration.core.<part> import <module>``), so no part of the
+method goes untested."""
 
 import re
 from pathlib import Path

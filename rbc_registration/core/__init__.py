@@ -54,6 +54,9 @@ MOVED = {
     "crossval": "decision.crossval", "evaluation": "decision.evaluation",
     "groups": "decision.groups", "noise": "decision.noise",
     "synthetic_structure": "synthetic.structure", "experiments": "synthetic.experiments",
+    "accumulator": "measurements.accumulator", "records": "measurements.records",
+    "measurement_checks": "measurements.checks", "pairing": "measurements.pairing",
+    "sessions": "measurements.sessions", "session_sums": "measurements.session_sums",
 }
 
 

@@ -10,7 +10,7 @@ raises on purpose (``except RegistrationError``).
 
 The classes of the layers derive from these (:class:`~rbc_registration.io.csv_io.CsvError`,
 :class:`~rbc_registration.io.bag.records.BagError`,
-:class:`~rbc_registration.core.records.RejectedMeasurement`,
+:class:`~rbc_registration.core.measurements.records.RejectedMeasurement`,
 :class:`~rbc_registration.pipeline.journal_records.JournalMismatch`,
 :class:`~rbc_registration.pipeline.files.StateDirBusy`, ...).
 """

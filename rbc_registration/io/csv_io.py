@@ -10,7 +10,7 @@ of one robot pose: held out together, :mod:`~rbc_registration.core.decision.grou
 group) and ``session`` (the measuring session; an empty cell continues the row before's session,
 the first rows' is ``1``). With more than one session, every session's working points are mapped
 into the reference session's frame when it moved, or left out when it cannot be compared
-(:mod:`~rbc_registration.core.sessions`) before any other rule. TARGETS.csv may carry
+(:mod:`~rbc_registration.core.measurements.sessions`) before any other rule. TARGETS.csv may carry
 ``session`` too (empty or absent: the reference session).
 """
 
@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..core.errors import InputError
 from ..core.constants import DIMENSIONS
 from ..core.repeats import repeat_outlier, typical_spacing
-from ..core.sessions import SessionPlan, estimate_sessions, session_cells
+from ..core.measurements.sessions import SessionPlan, estimate_sessions, session_cells
 from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.files import NotARegularFile, check_input_file
 from ..pipeline.targets import first_conflict, mean_by_id, rows_by_id

@@ -7,7 +7,8 @@ points and :class:`~rbc_registration.core.decision.noise.RepeatStats` instead of
 1. the file is parsed once (the ``csv`` module), :data:`CHUNK_ROWS` rows at a time, into a spool
    of fixed-width float64 records in an unlinked temporary file (line, id, session, the working
    and destination points) and a spool of the rows' text hashes; the sessions' per
-   (session, fiducial) sums are kept on the way (:func:`~rbc_registration.core.sessions.
+   (session, fiducial) sums are kept on the way
+   (:func:`~rbc_registration.core.measurements.sessions.
    session_cells`' sums, in row order);
 2. a look at the spool, re-stationed, finds the copied runs (:func:`~.csv_io._copied_runs`'
    rule; only rows whose text hash occurs more than once are looked at one by one) and each
@@ -39,7 +40,7 @@ from numpy.typing import NDArray
 
 from ..core.decision.noise import RepeatStats
 from ..core.repeats import repeat_outlier
-from ..core.sessions import SessionPlan, estimate_sessions
+from ..core.measurements.sessions import SessionPlan, estimate_sessions
 from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.files import NotARegularFile, check_input_file
 from .csv_io import (COPY_MATCHES, COPY_RUN, MAX_CSV_BYTES, CsvError, PathLike, _dimension,
@@ -514,7 +515,7 @@ def _z_value(text: Optional[str], present: bool) -> float:
 def _add_cells(block: NDArray[np.float64], cells: dict[tuple[int, int], int],
                sums: list[NDArray[np.float64]], counts: list[int]) -> None:
     """Add a chunk's working points to the per (session, id) sums (``sums[0]``, grown), in
-    row order (as :func:`~rbc_registration.core.sessions.session_cells` adds them)."""
+    row order (as :func:`~rbc_registration.core.measurements.sessions.session_cells` adds them)."""
     d = sums[0].shape[1]
     cell = np.array([cells.setdefault(key, len(cells)) for key in zip(
         block[:, 2].astype(np.int64).tolist(), block[:, 1].astype(np.int64).tolist())],

@@ -15,13 +15,13 @@ from typing import Any, Callable, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 
-from ..core.accumulator import FiducialSet
+from ..core.measurements.accumulator import FiducialSet
 from ..core.constants import MM_PER_M as MM
 from ..core.decision.evaluation import leave_one_out, target_errors
 from ..core.rigid.mismatch import pairwise_mismatch
 from ..core.decision.noise import format_rho
 from ..core.model import RbcModel
-from ..core.sessions import SessionPlan
+from ..core.measurements.sessions import SessionPlan
 from ..pipeline.offline import evaluate_inputs
 from ..pipeline.settings import Settings
 from ..pipeline.targets import Targets, with_truth
@@ -53,7 +53,7 @@ def evaluate_contents(contents: BagContents, settings: Settings,
                       loo: bool = False) -> Evaluation:
     """Accumulate, build the node's model and make the report (lengths in metres); with more
     than one session the report's ``sessions`` list is ``register``'s
-    (:meth:`~rbc_registration.core.sessions.SessionPlan.to_list`).
+    (:meth:`~rbc_registration.core.measurements.sessions.SessionPlan.to_list`).
 
     :param targets: targets to report, or a function of the fiducials' session plan giving
         them (default: the bag's targets topic, if any).
@@ -105,7 +105,7 @@ def rejections_line(rejected: dict[str, int], first: dict[str, str], total: int)
 
 def ambiguous_points_line(ev: Evaluation, working_topic: str, destination_topic: str) -> str:
     """The warning when points were refused as ambiguous (two points of the other stream within
-    ``pair_slop``, :mod:`rbc_registration.core.pairing`), or ""."""
+    ``pair_slop``, :mod:`rbc_registration.core.measurements.pairing`), or ""."""
     n = ev.rejected.get("ambiguous", 0)
     if not n:
         return ""
@@ -116,7 +116,7 @@ def ambiguous_points_line(ev: Evaluation, working_topic: str, destination_topic:
 
 def duplicates_line(ev: Evaluation, source: str) -> str:
     """The warning when measurements were rejected as exact duplicates (the accumulator's
-    duplicate rule, :mod:`rbc_registration.core.accumulator`), or ""."""
+    duplicate rule, :mod:`rbc_registration.core.measurements.accumulator`), or ""."""
     n = ev.rejected.get("duplicate", 0)
     if not n:
         return ""

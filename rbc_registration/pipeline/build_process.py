@@ -39,7 +39,7 @@ import threading
 from typing import IO, Any, Callable, Optional
 
 from ..core.errors import OperationError
-from ..core.accumulator import FiducialSet
+from ..core.measurements.accumulator import FiducialSet
 from ..core.interpolation.kriging import KrigingHyperparameters
 from .settings import PROCESS_MIN_FIDUCIALS, Settings
 from .state import ModelState, build_state

@@ -1,5 +1,6 @@
 """The restart checkpoint of ``registration_node`` in ``state_dir`` (no rclpy): the running sums of
-:class:`~rbc_registration.core.accumulator.FiducialAccumulator` with the journal position they
+:class:`~rbc_registration.core.measurements.accumulator.FiducialAccumulator` with the journal
+position they
 stand for, so that a start loads them and replays only the journal's tail.
 
 ``checkpoint.json`` is written atomically (:func:`~.snapshot.write_atomic`) after each
@@ -31,10 +32,10 @@ from typing import Any, Iterable, NamedTuple, Optional
 
 import numpy as np
 
-from ..core.accumulator import FiducialAccumulator, Record
-from ..core.records import REJECT_REASONS, FiducialRepeats
+from ..core.measurements.accumulator import FiducialAccumulator, Record
+from ..core.measurements.records import REJECT_REASONS, FiducialRepeats
 from ..core.rigid.registration import Registration
-from ..core.sessions import Bump
+from ..core.measurements.sessions import Bump
 from .files import read_regular
 
 CHECKPOINT_NAME = "checkpoint.json"

@@ -1,5 +1,6 @@
 """Thread-safe ingestion, shared by ``registration_node`` and offline ``evaluate``: pairing,
-validation (the shared :class:`~rbc_registration.core.accumulator.FiducialAccumulator`),
+validation (the shared
+:class:`~rbc_registration.core.measurements.accumulator.FiducialAccumulator`),
 journaling before a measurement counts, rejection logging, and the counters the node reports.
 No rclpy, no message packages: the node converts messages to :class:`PairArgs` and passes its
 logger in.
@@ -11,10 +12,10 @@ import threading
 import time
 from typing import Any, Callable, Mapping, NamedTuple, Optional, Sequence
 
-from ..core.accumulator import (FiducialAccumulator, FiducialSet, Measurement, Record,
+from ..core.measurements.accumulator import (FiducialAccumulator, FiducialSet, Measurement, Record,
                                 RejectedMeasurement)
 from ..core.constants import DESTINATION, WORKING
-from ..core.pairing import DroppedPoint, PointPair, StampPairer
+from ..core.measurements.pairing import DroppedPoint, PointPair, StampPairer
 from ..core.rigid.scale import dropped_z_warning
 from .checkpoint import checkpoint_text, replay, resume
 from .journal import Journal
@@ -253,7 +254,8 @@ class Ingest:
               recorded: Optional[list[PointPair]] = None) -> list[PointPair]:
         """One ``~/working_point`` / ``~/destination_point``: the pairs it completed that were
         accepted (empty: none; truthy when the model must be rebuilt). Unpairable points are
-        rejected as malformed, ambiguous ones (:mod:`~rbc_registration.core.pairing`) as
+        rejected as malformed, ambiguous ones (:mod:`~rbc_registration.core.measurements.pairing`)
+        as
         ambiguous, a copy of a point seen before as a duplicate.
 
         :param recorded: when given, extended by the pairs that are recorded now: the accepted

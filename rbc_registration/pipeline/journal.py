@@ -50,7 +50,7 @@ import time
 import zlib
 from typing import Any, Iterable, Optional
 
-from ..core.accumulator import Record
+from ..core.measurements.accumulator import Record
 from .checkpoint import CHECKPOINT_NAME, JournalPosition
 from .files import open_private, private_dir, read_fd
 from .journal_records import (JOURNAL_NAME, JOURNAL_VERSION, MAX_JOURNAL_BYTES, MAX_LINE_BYTES,

@@ -13,7 +13,7 @@ import zlib
 from typing import Any, Optional
 
 from ..core.errors import InputError
-from ..core.accumulator import EnabledChange, Measurement, Record
+from ..core.measurements.accumulator import EnabledChange, Measurement, Record
 
 JOURNAL_NAME = "journal.jsonl"
 JOURNAL_VERSION = 2

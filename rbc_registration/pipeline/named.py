@@ -14,7 +14,7 @@ import re
 from typing import Any, NamedTuple, Optional, Sequence
 
 from ..core.frames import frame_id_problem
-from ..core.records import quote
+from ..core.measurements.records import quote
 from ..core.validation import MAX_ABS_COORDINATE
 
 #: Most entries of ``target_frames`` (each is one answer per model, under the publishing lock).

@@ -16,12 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..core.errors import InputError
-from ..core.accumulator import FiducialAccumulator, FiducialSet
+from ..core.measurements.accumulator import FiducialAccumulator, FiducialSet
 from ..core.constants import WORKING
 from ..core.model import RbcModel
-from ..core.pairing import StampPairer
-from ..core.records import RejectedMeasurement, quote
-from ..core.sessions import SessionPlan
+from ..core.measurements.pairing import StampPairer
+from ..core.measurements.records import RejectedMeasurement, quote
+from ..core.measurements.sessions import SessionPlan
 from .ingest import Ingest, PairArgs
 from .inputs import PairMessage, PointMessage
 from .settings import SPECS, Settings

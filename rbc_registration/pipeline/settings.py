@@ -15,7 +15,7 @@ from typing import Any, Mapping, NamedTuple, Optional
 from ..core.constants import (DECISION_MODES, INTERPOLATIONS, MAX_RESTORATION_STEPS,
                                RESTORATIONS, DecisionMode, rho_thresholds_error)
 from ..core.frames import frame_id_problem, same_frame_problem
-from ..core.records import quote
+from ..core.measurements.records import quote
 from .named import (calibration_name_problem, is_calibration_name, parse_target_frames,
                     target_frames_problem)
 

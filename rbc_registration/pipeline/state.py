@@ -9,11 +9,11 @@ from typing import Optional
 
 import numpy as np
 
-from ..core.accumulator import FiducialSet
+from ..core.measurements.accumulator import FiducialSet
 from ..core.decision.evaluation import describe_misfits, gross_misfits
 from ..core.interpolation.kriging import KrigingHyperparameters
 from ..core.model import ModelConfig, RbcModel, build_model
-from ..core.session_sums import AUTO_SESSION_PREFIX
+from ..core.measurements.session_sums import AUTO_SESSION_PREFIX
 from ..core.warnings import model_warnings
 from .settings import Settings
 
@@ -121,7 +121,8 @@ def build_state(fiducials: FiducialSet, settings: Settings, stamp_ns: int,
 
 def session_warning(fiducials: FiducialSet) -> str:
     """The sessions' line of :attr:`ModelState.warning`: the sessions moved (re-stationed) and
-    kept apart (:meth:`~rbc_registration.core.sessions.SessionPlan.warning`, metres), the
+    kept apart (:meth:`~rbc_registration.core.measurements.sessions.SessionPlan.warning`, metres),
+    the
     sessions the node opened on a move it detected (``auto-N``, :mod:`~rbc_registration.core.
     session_sums`), and when each session starts (the stamp of its first measurement); "" with
     one session or nothing to say."""

@@ -17,8 +17,8 @@ from numpy.typing import NDArray
 from rbc_registration_interfaces.msg import FiducialResidual, TargetCorrection
 
 from ..core.constants import UNCORRECTED
-from ..core.measurement_checks import stamp_seconds
-from ..core.records import quote
+from ..core.measurements.checks import stamp_seconds
+from ..core.measurements.records import quote
 from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.ingest import PairArgs
 from . import fast_msgs
@@ -28,7 +28,7 @@ def stamp_to_seconds(stamp: Time) -> float:
     """``builtin_interfaces/Time`` -> seconds (float).
 
     :raises RejectedMeasurement: ``malformed`` when ``nanosec`` is 10^9 or more
-        (:func:`~rbc_registration.core.measurement_checks.stamp_seconds`).
+        (:func:`~rbc_registration.core.measurements.checks.stamp_seconds`).
     """
     return stamp_seconds(stamp.sec, stamp.nanosec)
 

@@ -32,9 +32,9 @@ from rbc_registration_interfaces.msg import FiducialPair, RegistrationStatus
 from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetFiducials,
                                              SetFiducialEnabled, SuggestNext, TakeSample)
 
-from ..core.accumulator import FiducialAccumulator
-from ..core.pairing import DESTINATION, WORKING, StampPairer
-from ..core.records import RejectedMeasurement, quote
+from ..core.measurements.accumulator import FiducialAccumulator
+from ..core.measurements.pairing import DESTINATION, WORKING, StampPairer
+from ..core.measurements.records import RejectedMeasurement, quote
 from ..pipeline.checkpoint import checkpoint_path
 from ..pipeline.files import StateDirLock
 from ..pipeline.health import HealthMonitor

@@ -13,8 +13,8 @@ from geometry_msgs.msg import PointStamped
 
 from rbc_registration_interfaces.msg import FiducialPair
 
-from ..core.pairing import DESTINATION, WORKING
-from ..core.records import RejectedMeasurement
+from ..core.measurements.pairing import DESTINATION, WORKING
+from ..core.measurements.records import RejectedMeasurement
 from ..pipeline.ingest import PairArgs
 from ..pipeline.settings import Settings
 from . import conversions as conv
@@ -87,7 +87,8 @@ class SampleTaker:
             self._latest[stream] = Latest(msg, now)
 
     def mark_paired(self, pairs: Sequence[Any]) -> None:
-        """Stamp pairs (``core.pairing.PointPair``) were recorded: a latest point that is one of
+        """Stamp pairs (``core.measurements.pairing.PointPair``) were recorded: a latest point that
+        is one of
         their points (same coordinates and stamp) must not be recorded again by
         ``~/take_sample``."""
         with self._lock:

@@ -16,7 +16,7 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetF
 
 import re
 
-from ..core.records import RejectedMeasurement
+from ..core.measurements.records import RejectedMeasurement
 from ..core.rigid.scale import unit_mismatch
 from ..pipeline.residuals import fiducial_residuals
 from ..pipeline.snapshot import snapshot_path

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rbc_registration import cli
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.calibration import (read_calibration,
                                              static_transform_publisher_command)

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import rbc_registration
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.core.errors import InputError, OperationError, RegistrationError
-from rbc_registration.core.records import RejectedMeasurement
+from rbc_registration.core.measurements.records import RejectedMeasurement
 from rbc_registration.io.bag.records import BagError
 from rbc_registration.io.csv_io import CsvError, read_fiducials
 from rbc_registration.pipeline.build_process import BuildCancelled, BuildProcessDied

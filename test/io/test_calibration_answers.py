@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.io.calibration import read_calibration, write_calibration
 from rbc_registration.io.calibration_model import calibration_from_state
 from rbc_registration.pipeline.settings import Settings

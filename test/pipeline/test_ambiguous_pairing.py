@@ -4,8 +4,8 @@ reason, never a measurement; unambiguous streams ingested bit for bit as before.
 import numpy as np
 import pytest
 
-from rbc_registration.core.accumulator import FiducialAccumulator
-from rbc_registration.core.pairing import StampPairer
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.pairing import StampPairer
 from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.bag.records import SYNTH_PERIOD_S
 from rbc_registration.io.bag.synthetic import cell_messages

@@ -10,7 +10,7 @@ import threading
 import numpy as np
 import pytest
 
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.pipeline import build_process
 from rbc_registration.pipeline.build_process import (BuildCancelled, BuildProcessDied,
                                                      ProcessBuilder, uses_process)

@@ -9,9 +9,9 @@ import os
 import numpy as np
 import pytest
 
-from rbc_registration.core.accumulator import FiducialAccumulator
-from rbc_registration.core.pairing import StampPairer
-from rbc_registration.core.records import Measurement
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.pairing import StampPairer
+from rbc_registration.core.measurements.records import Measurement
 from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.core.synthetic.structure import moved_sessions
 from rbc_registration.pipeline import checkpoint as cp

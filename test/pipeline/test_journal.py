@@ -9,7 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from rbc_registration.core.accumulator import EnabledChange, FiducialAccumulator, Measurement
+from rbc_registration.core.measurements.accumulator import (EnabledChange, FiducialAccumulator,
+                                                            Measurement)
 from rbc_registration.pipeline.journal import (JOURNAL_NAME, Journal, JournalMismatch,
                                                record_from_json, record_to_json)
 from rbc_registration.pipeline.snapshot import write_atomic
@@ -284,7 +285,7 @@ def test_a_new_journal_whose_header_cannot_be_written_yet(tmp_path, monkeypatch)
 
 FSIZE_WRITER = """
 import resource, signal, sys
-from rbc_registration.core.accumulator import Measurement
+from rbc_registration.core.measurements.accumulator import Measurement
 from rbc_registration.pipeline.journal import Journal
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)       # writes beyond the limit fail with EFBIG
 resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[2]), int(sys.argv[2])))
@@ -320,7 +321,7 @@ def test_a_failed_archive_leaves_the_journal_open_and_reset_forgets_nothing(tmp_
     journal was closed first and never reopened, so every later pair was dropped with an
     AssertionError no counter showed, and the memory (cleared) and the journal (kept)
     disagreed. Now nothing is forgotten and appends go on."""
-    from rbc_registration.core.pairing import StampPairer
+    from rbc_registration.core.measurements.pairing import StampPairer
     from rbc_registration.pipeline.ingest import Ingest
 
     acc = FiducialAccumulator(3, "tracker", "world", 0.005, 0.0)

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from rbc_registration.core.accumulator import FiducialAccumulator, Measurement
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator, Measurement
 from rbc_registration.pipeline.journal import JOURNAL_NAME, Journal, JournalMismatch
 
 HEADER = {"working_frame": "tracker", "destination_frame": "world", "dimension": 3}

@@ -8,7 +8,7 @@ fiducials out, names them, and serves the model of the others (core/decision/eva
 import numpy as np
 import pytest
 
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.core.decision.evaluation import (BLUNDER_FACTOR, distance_misfits,
                                                        gross_misfits)
 from rbc_registration.core.synthetic.cells import make_cell

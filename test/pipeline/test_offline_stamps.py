@@ -1,7 +1,7 @@
 """A bag's message whose stamp is not a time is rejected offline as the node rejects it."""
 
-from rbc_registration.core.measurement_checks import stamp_seconds
-from rbc_registration.core.records import RejectedMeasurement
+from rbc_registration.core.measurements.checks import stamp_seconds
+from rbc_registration.core.measurements.records import RejectedMeasurement
 from rbc_registration.pipeline.inputs import PairMessage, PointMessage
 from rbc_registration.pipeline.offline import accumulate, settings_for
 

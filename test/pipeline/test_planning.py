@@ -9,7 +9,7 @@ import threading
 import numpy as np
 import pytest
 
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.core.model_planner import (error_model_from, expected_target_error,
                                                  plan_from_model)
 from rbc_registration.core.planner import PlanConfig

@@ -4,7 +4,7 @@ earlier ones: no model, and the error says why and what to measure."""
 
 import numpy as np
 
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.pipeline.offline import settings_for
 from rbc_registration.pipeline.state import build_state
 

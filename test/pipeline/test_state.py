@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.core.constants import DecisionMode
 from rbc_registration.pipeline.settings import Settings
 from rbc_registration.pipeline.state import build_state, model_config, warm_start

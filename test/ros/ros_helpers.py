@@ -16,7 +16,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
-from rbc_registration.core.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
 from rbc_registration.pipeline.settings import Settings
 from rbc_registration.pipeline.state import build_state
 from rbc_registration.ros.process import start_node, stop_process

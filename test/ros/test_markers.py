@@ -12,8 +12,8 @@ pytest.importorskip("rbc_registration_interfaces.msg")
 from builtin_interfaces.msg import Time  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
 
-from rbc_registration.core.accumulator import FiducialAccumulator  # noqa: E402
-from rbc_registration.core.pairing import StampPairer  # noqa: E402
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator  # noqa: E402
+from rbc_registration.core.measurements.pairing import StampPairer  # noqa: E402
 from rbc_registration.pipeline.ingest import Ingest  # noqa: E402
 from rbc_registration.pipeline.settings import Settings  # noqa: E402
 from rbc_registration.pipeline.state import EMPTY_STATE, build_state  # noqa: E402

@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rbc_registration_interfaces.msg")
 
-from rbc_registration.core.accumulator import FiducialAccumulator  # noqa: E402
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator  # noqa: E402
 from rbc_registration.pipeline.journal import Journal  # noqa: E402
 from ros_helpers import start_test_node, wait_for  # noqa: E402
 

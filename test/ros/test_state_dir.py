@@ -18,7 +18,7 @@ from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa:
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from rbc_registration.core.accumulator import Measurement  # noqa: E402
+from rbc_registration.core.measurements.accumulator import Measurement  # noqa: E402
 from rbc_registration.pipeline.journal import JOURNAL_NAME, Journal  # noqa: E402
 from rbc_registration_interfaces.msg import FiducialPair  # noqa: E402
 from rbc_registration_interfaces.srv import CorrectTarget  # noqa: E402

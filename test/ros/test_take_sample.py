@@ -135,7 +135,8 @@ class TestTakeSample(NodeTestBase):
         """Pair mode, the point topics bridged twice: the copy of a paired working point made
         it the latest point again, unmarked, so ~/take_sample recorded the pair's measurement a
         second time. The pairer drops the copy as a duplicate and the copy keeps the mark.
-        Stamped points: an unstamped copy cannot be told from a repeat (core/pairing)."""
+        Stamped points: an unstamped copy cannot be told from a repeat
+        (core/measurements/pairing)."""
         node = self.make_node()
         self.send(node, "working_point", self.cell["working"][0], "tracker", stamp=3.0)
         self.send(node, "destination_point", self.cell["destination"][0], "world", stamp=3.0)

@@ -36,7 +36,8 @@ DEFAULT_MAX_GAP = 60.0
 #: the bag must end before the int64 nanosecond stamps overflow).
 PERIODS = (1e-9, 3600.0)
 #: Its default: more than twice the default ``pair_slop`` (0.02 s), so that the point streams of
-#: ``--points`` are never ambiguous (:mod:`rbc_registration.core.pairing`; the earlier default
+#: ``--points`` are never ambiguous (:mod:`rbc_registration.core.measurements.pairing`; the earlier
+#: default
 #: 0.02 s, equal to the slop, put every point within the slop of two points of the other stream).
 SYNTH_PERIOD_S = 0.05
 #: ``OutMessage.kind`` -> the message type written.

@@ -1,10 +1,11 @@
 """Sessions between which the working frame moved: the F test, re-stationing, sessions kept
-apart, and the live bump detector (core/sessions.py)."""
+apart, and the live bump detector (core/measurements/sessions.py)."""
 
 import numpy as np
 import pytest
 
-from rbc_registration.core.sessions import (BumpDetector, estimate_sessions, motion_test,
+from rbc_registration.core.measurements.sessions import (BumpDetector, estimate_sessions,
+                                                         motion_test,
                                             session_cells, spread_enough)
 from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.core.synthetic.structure import moved_sessions

@@ -13,7 +13,7 @@ import math
 from numpy.typing import ArrayLike
 
 from .records import EnabledChange, Measurement, Record, RejectedMeasurement, quote
-from .validation import MAX_ABS_COORDINATE
+from ..validation import MAX_ABS_COORDINATE
 
 #: Longest fiducial id accepted [characters].
 MAX_ID_LENGTH = 256

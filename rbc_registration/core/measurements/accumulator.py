@@ -46,12 +46,12 @@ from typing import Iterable, Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .measurement_checks import (MAX_ID_LENGTH, check_age, check_coords, check_label,
+from .checks import (MAX_ID_LENGTH, check_age, check_coords, check_label,
                                  check_new_id, check_record_values, check_stamp)
-from .decision.noise import RepeatStats
+from ..decision.noise import RepeatStats
 from .records import (REJECT_REASONS, EnabledChange, FiducialRepeats, FiducialSet, Measurement,
                       Record, RejectedMeasurement, quote)
-from .repeats import repeat_outlier
+from ..repeats import repeat_outlier
 from .session_sums import SessionSums
 
 __all__ = ["AUTO_ID_PREFIX", "DUPLICATE_WINDOW", "MAX_ID_LENGTH", "REJECT_REASONS", "EnabledChange",

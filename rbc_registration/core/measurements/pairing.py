@@ -58,7 +58,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import DESTINATION, WORKING
+from ..constants import DESTINATION, WORKING
 
 _OTHER = {WORKING: DESTINATION, DESTINATION: WORKING}
 #: A stream going back by more than this [s] (and the slop) restarts (module docstring): longer

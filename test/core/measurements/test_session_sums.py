@@ -1,14 +1,16 @@
-"""The accumulator's sessions (core/session_sums.py, core/accumulator.py): declared sessions
+"""The accumulator's sessions (core/measurements/session_sums.py,
+core/measurements/accumulator.py): declared sessions
 re-stationed into the current one, the live bump rule opening ``auto-N``, sessions kept apart,
 groups kept per fiducial (a conflicting group rejected), and a restore giving the same state."""
 
 import numpy as np
 import pytest
 
-from rbc_registration.core.accumulator import FiducialAccumulator
-from rbc_registration.core.records import FiducialRepeats, Measurement, RejectedMeasurement
-from rbc_registration.core.session_sums import SessionSums
-from rbc_registration.core.sessions import estimate_sessions, session_cells
+from rbc_registration.core.measurements.accumulator import FiducialAccumulator
+from rbc_registration.core.measurements.records import (FiducialRepeats, Measurement,
+                                                        RejectedMeasurement)
+from rbc_registration.core.measurements.session_sums import SessionSums
+from rbc_registration.core.measurements.sessions import estimate_sessions, session_cells
 from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.core.synthetic.structure import moved_sessions
 

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from rbc_registration.core.pairing import StampPairer
+from rbc_registration.core.measurements.pairing import StampPairer
 
 
 def test_pairs_within_slop_either_order():

@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rbc_registration.core.accumulator import (REJECT_REASONS, EnabledChange, FiducialAccumulator,
+from rbc_registration.core.measurements.accumulator import (REJECT_REASONS, EnabledChange,
+                                                            FiducialAccumulator,
                                                Measurement, RejectedMeasurement)
 
 
@@ -347,7 +348,7 @@ def test_unstamped_measurements_are_never_duplicates():
 
 
 def test_the_duplicate_window_is_bounded():
-    from rbc_registration.core.accumulator import DUPLICATE_WINDOW
+    from rbc_registration.core.measurements.accumulator import DUPLICATE_WINDOW
 
     acc = make()
     for k in range(DUPLICATE_WINDOW + 1):
@@ -398,8 +399,8 @@ def test_points_whose_float_hashes_collide_are_still_other_points():
 def test_an_id_that_was_not_utf8_is_malformed_live_but_kept_on_replay():
     """rclpy decodes a non-UTF-8 id to U+FFFD characters, so two holes sent as
     different invalid bytes became one fiducial (averaged, or one rejected as an outlier)."""
-    from rbc_registration.core.accumulator import Measurement
-    from rbc_registration.core.records import RejectedMeasurement
+    from rbc_registration.core.measurements.accumulator import Measurement
+    from rbc_registration.core.measurements.records import RejectedMeasurement
 
     acc = FiducialAccumulator(3, "tracker", "world", 0.005, 0.0)
     with pytest.raises(RejectedMeasurement, match="fiducial_id is not valid UTF-8") as info:
@@ -412,8 +413,8 @@ def test_an_id_that_was_not_utf8_is_malformed_live_but_kept_on_replay():
 def test_a_stamp_whose_nanosec_is_not_below_a_second_is_malformed():
     """(100 s, 4e9 ns) was read as 104 s and paired or conflicted with other
     measurements."""
-    from rbc_registration.core.measurement_checks import stamp_seconds
-    from rbc_registration.core.records import RejectedMeasurement
+    from rbc_registration.core.measurements.checks import stamp_seconds
+    from rbc_registration.core.measurements.records import RejectedMeasurement
 
     assert stamp_seconds(100, 999_999_999) == pytest.approx(100.999999999)
     for nanosec in (1_000_000_000, 4_000_000_000):

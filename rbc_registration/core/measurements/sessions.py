@@ -37,7 +37,7 @@ import numpy as np
 import scipy.stats
 from numpy.typing import ArrayLike, NDArray
 
-from .rigid.registration import Registration, rigid_fit
+from ..rigid.registration import Registration, rigid_fit
 
 #: A session moved when the F test's p-value is below this (1 % false moves per session).
 SESSION_SIGNIFICANCE = 0.01

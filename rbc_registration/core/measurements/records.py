@@ -1,4 +1,5 @@
-"""The records of :mod:`rbc_registration.core.accumulator` (which re-exports them): accepted
+"""The records of :mod:`rbc_registration.core.measurements.accumulator` (which re-exports them):
+accepted
 measurements, enable changes, the enabled fiducials ready for ``build_model``, a rejected
 measurement with its reason, and the per-fiducial store of repeats. Pure Python + numpy.
 """
@@ -11,9 +12,9 @@ from typing import TYPE_CHECKING, Any, Optional, Union
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InputError
-from .constants import REJECT_REASONS
-from .decision.noise import RepeatStats
+from ..errors import InputError
+from ..constants import REJECT_REASONS
+from ..decision.noise import RepeatStats
 
 if TYPE_CHECKING:   # scipy.stats is loaded where sessions are estimated, not with the records
     from .sessions import SessionPlan
