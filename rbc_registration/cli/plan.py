@@ -77,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
     from ..core.model import build_model
     from ..core.model_planner import calibrated, plan_from_model
     from ..core.planner import PlanConfig, overlap_notes, typical_repeats
-    from ..io.csv_io import read_fiducials, read_targets, target_sessions
+    from ..io.csv_io import read_targets, target_sessions
+    from ..io.csv_stream import read_fiducial_sums
     from ..io.plan_report import format_plan, plan_report
     from ..io.report import write_json
     from .register import model_config
@@ -97,8 +98,8 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:             # the message names the field: name its option
         option = next((o for f, o in _OPTIONS.items() if str(exc).startswith(f)), "plan")
         raise ValueError(f"{option}: {exc}") from None
-    fid = read_fiducials(args.fiducials, args.dim, args.outlier_distance,
-                         target_sessions(args.targets))
+    fid = read_fiducial_sums(args.fiducials, args.dim, args.outlier_distance,
+                             target_sessions(args.targets))
     for note in fid.notes:
         warn("plan", note)
     cand = read_targets(args.candidates, fid.dimension, args.outlier_distance, "candidate",
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         else len(cand.ids)
     count = min(DEFAULT_COUNT, units) if args.count is None else args.count
     model = build_model(fid.working, fid.destination, model_config(args, fid.dimension),
-                        ids=fid.ids, working_repeats=fid.working_repeats, groups=fid.groups)
+                        ids=fid.ids, repeat_statistics=fid.repeat_stats, groups=fid.groups)
     groups = cand.groups if cand.groups is not None and any(cand.groups) else None
     em, check = calibrated(model)
     plan = plan_from_model(model, cand.working, tgt.working if tgt else None, count=count,
@@ -148,9 +149,9 @@ def _unit_of(plan: Any, count: int) -> list[int]:
 
 def _warn_unit_mismatch(fiducials: Any, candidates: Any, targets: Any) -> None:
     """One warning line for candidates, and one for targets, that lie all outside the fiducials'
-    hull at a scale ~100x off theirs (:func:`rbc_registration.core.scale.unit_mismatch`)."""
-    from ..core.interpolation import HullTest
-    from ..core.scale import point_sets_unit_mismatch
+    hull at a scale ~100x off theirs (:func:`rbc_registration.core.rigid.scale.unit_mismatch`)."""
+    from ..core.interpolation.paper import HullTest
+    from ..core.rigid.scale import point_sets_unit_mismatch
 
     for text in point_sets_unit_mismatch(fiducials, HullTest(fiducials),
                                          (("candidates", candidates), ("targets", targets))):

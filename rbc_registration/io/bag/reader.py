@@ -24,11 +24,12 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
 from ...core.constants import DESTINATION, WORKING
-from ...core.measurement_checks import stamp_seconds
-from ...core.records import RejectedMeasurement
+from ...core.measurements.checks import stamp_seconds
+from ...core.measurements.records import RejectedMeasurement
 from ...pipeline.files import NotARegularFile, check_input_file
 from ..progress import Progress
 from .mcap_crc import check_mcap, storage_files
+from .spool import InputSpool
 from .records import (DEFAULT_TOPICS, FIDUCIAL_PAIR, POINT_STAMPED, BagContents, BagError,
                       PairMessage, PointMessage, RawMessage, Topics)
 from .typestore import check_definitions, make_typestore
@@ -241,7 +242,7 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
         bar = Progress(f"reading {Path(path).name}", sum(c.msgcount for c in conns),
                        enabled=progress)
         counts = {t: 0 for t in wanted}
-        ins: list[Union[PairMessage, PointMessage]] = []
+        ins = InputSpool()      # the inputs on disk, not as Python objects: flat in messages
         tgts: list[PairMessage] = []
         k = 0
         try:
@@ -287,7 +288,7 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                    "session: read as empty (every fiducial its own group, every measurement in "
                    "the current session)" for t in legacy if counts.get(t))
     other = {t: ty for t, ty in types.items() if t not in expected}
-    return BagContents(Path(path), tuple(ins), tuple(tgts), counts, other,
+    return BagContents(Path(path), ins, tuple(tgts), counts, other,
                        count_mismatches(path, conns, counts), notes)
 
 

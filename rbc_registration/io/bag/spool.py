@@ -117,5 +117,12 @@ class InputSpool:
 
     __hash__ = None  # type: ignore[assignment]
 
+    def __add__(self, other: Any) -> tuple:
+        """``tuple(self) + other`` (the spool joins a tuple as the tuple it stands for)."""
+        return tuple(self) + tuple(other)
+
+    def __radd__(self, other: Any) -> tuple:
+        return tuple(other) + tuple(self)
+
     def close(self) -> None:
         self._file.close()
