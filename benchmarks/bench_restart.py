@@ -153,12 +153,17 @@ def start(client: Client, state_dir: str, log, n_expected: int, timeout: float =
     client.statuses.clear()
     t0 = time.monotonic()
     proc = start_node(client.name, {"state_dir": state_dir, "debounce_period": 0.05}, log=log)
-    up = client.first_answer(timeout) - t0
-    if n_expected == 0:
-        return {"proc": proc, "up": up, "rss": proc_mb(proc.pid, "VmRSS")}
-    model = client.spin_until(lambda: client.statuses and client.statuses[-1].model_valid
-                              and client.statuses[-1].n_measurements == n_expected, timeout,
-                              "the model") - t0
+    try:
+        up = client.first_answer(timeout) - t0
+        if n_expected == 0:
+            return {"proc": proc, "up": up, "rss": proc_mb(proc.pid, "VmRSS")}
+        model = client.spin_until(lambda: client.statuses and client.statuses[-1].model_valid
+                                  and client.statuses[-1].n_measurements == n_expected,
+                                  timeout, "the model") - t0
+    except BaseException:
+        proc.kill()           # no node outlives the benchmark
+        proc.wait()
+        raise
     return {"proc": proc, "up": up, "model": model, "rss": proc_mb(proc.pid, "VmRSS"),
             "hwm": proc_mb(proc.pid, "VmHWM"), "n": client.statuses[-1].n_measurements}
 
