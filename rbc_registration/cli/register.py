@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
                                                           ("--targets", args.targets)])
     # read as a stream: per-fiducial means and repeat statistics, memory flat in the rows
     fid = read_fiducial_sums(args.fiducials, args.dim, args.outlier_distance,
-                             target_sessions(args.targets))
+                             target_sessions(args.targets), progress=True)
     for note in fid.notes:
         warn("register", note)
     cfg = model_config(args, fid.dimension, fid.ids)

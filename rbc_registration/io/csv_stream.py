@@ -43,6 +43,7 @@ from ..core.repeats import repeat_outlier
 from ..core.measurements.sessions import SessionPlan, estimate_sessions
 from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.files import NotARegularFile, check_input_file
+from .progress import Progress
 from .csv_io import (COPY_MATCHES, COPY_RUN, MAX_CSV_BYTES, CsvError, PathLike, _dimension,
                      _header_hint, _ignored_rows_notes, _likely_format, _number,
                      _refuse_swallowed_rows, _repeat_limits)
@@ -359,7 +360,7 @@ REQUIRED = ["id", "wx", "wy", "dx", "dy"]
 BLOCK_CHARS = 1 << 20
 
 
-def _read_blocks(parser: _Parser, fh: IO[str], line_no: int) -> None:
+def _read_blocks(parser: _Parser, fh: IO[str], line_no: int, bar: Progress) -> None:
     """Feed ``parser`` the rest of the file: blocks of whole lines split at commas while they
     hold no quote, NUL or lone carriage return (then read exactly as the ``csv`` module reads
     them); from the first block that does, the ``csv`` module."""
@@ -371,6 +372,7 @@ def _read_blocks(parser: _Parser, fh: IO[str], line_no: int) -> None:
             return
         if not raw.endswith("\n"):
             raw += fh.readline()
+        bar.update(len(raw))
         block = raw.replace("\r\n", "\n") if "\r" in raw else raw
         if '"' in block or "\x00" in block or "\r" in block or (
                 len(block) > limit and max(map(len, block.split("\n"))) > limit):
@@ -411,7 +413,7 @@ def _read_csv(parser: _Parser, reader: Any, offset: int) -> None:
         parser.chunk(rows, lines)
 
 
-def _parse(path: PathLike, dim: Optional[int]) -> _Parsed:
+def _parse(path: PathLike, dim: Optional[int], progress: bool = False) -> _Parsed:
     """Pass 1 (module docstring). Errors are raised in :func:`~.csv_io.read_fiducials`' order:
     decoding and CSV errors, the header's, quoted fields swallowing rows, extra fields, missing
     columns, no rows, the dimension, then the first row of a bad value or group."""
@@ -424,6 +426,8 @@ def _parse(path: PathLike, dim: Optional[int]) -> _Parsed:
     except NotARegularFile as exc:
         raise CsvError(str(exc)) from None
     parser: Optional[_Parser] = None
+    bar = Progress(f"reading {p.name} (characters)", p.stat().st_size, enabled=progress,
+                   delay_s=1.0)
     try:
         with fh:
             head = fh.readline()
@@ -433,7 +437,8 @@ def _parse(path: PathLike, dim: Optional[int]) -> _Parsed:
                 _read_csv(parser, reader, 0)
             else:
                 parser = _Parser(path, p, next(csv.reader([head]), []), dim)
-                _read_blocks(parser, fh, 1 if head else 0)
+                _read_blocks(parser, fh, 1 if head else 0, bar)
+        bar.done()
     except UnicodeDecodeError as exc:
         if parser is not None:
             parser.close()
@@ -642,13 +647,16 @@ class CopyFinder:
 
 def read_fiducial_sums(path: PathLike, dim: Optional[int] = None,
                        outlier_distance: Optional[float] = None,
-                       reference_sessions: Optional[Sequence[str]] = None) -> FiducialSums:
+                       reference_sessions: Optional[Sequence[str]] = None,
+                       progress: bool = False) -> FiducialSums:
     """Read FIDUCIALS.csv as :func:`~.csv_io.read_fiducials` does (its parameters, rules,
     notes and errors), in memory flat in the rows (module docstring).
 
+    :param progress: show the reading's progress on a terminal (:class:`~.progress.Progress`).
+
     :raises CsvError: as :func:`~.csv_io.read_fiducials`.
     """
-    parsed = _parse(path, dim)
+    parsed = _parse(path, dim, progress)
     try:
         return _summarise(path, parsed, outlier_distance, reference_sessions)
     finally:

@@ -2,6 +2,7 @@
 notes and errors; register's JSON unchanged; memory flat in the rows."""
 
 import csv
+import io
 import json
 import tracemalloc
 
@@ -13,6 +14,7 @@ from rbc_registration.core.decision.noise import repeat_stats
 from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.core.synthetic.structure import make_robot_cell, moved_sessions
 from rbc_registration.io import csv_stream
+from rbc_registration.io import progress as progress_module
 from rbc_registration.io.csv_io import CsvError, read_fiducials
 from rbc_registration.io.csv_stream import FiducialSums, read_fiducial_sums
 
@@ -233,3 +235,28 @@ def test_memory_is_flat_in_the_rows(tmp_path, monkeypatch):
     memory_small, memory_large = (_peak(read_fiducials, p) for p in paths)
     assert memory_large >= 3 * memory_small
     assert large < memory_large / 10
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_progress_is_a_line_on_a_terminal_and_quiet_when_piped(monkeypatch):
+    monkeypatch.setattr(progress_module.time, "monotonic", iter(range(0, 1000, 1)).__next__)
+    tty, pipe = _Terminal(), io.StringIO()
+    for stream in (tty, pipe):
+        bar = progress_module.Progress("reading f.csv", 10, stream=stream, every_s=2)
+        for _ in range(10):
+            bar.update()
+        bar.done()
+    assert pipe.getvalue() == ""
+    shown = tty.getvalue()
+    assert shown.endswith("reading f.csv [" + "#" * 30 + "] 10/10 (100%)\n")
+    assert 3 <= shown.count("\r") <= 6          # redrawn every 2 s of the 10, not per item
+
+
+def test_reading_with_progress_prints_nothing_when_piped(cases, capsys):
+    path = cases[0][0]
+    assert read_fiducial_sums(path, progress=True).ids == read_fiducials(path).ids
+    assert capsys.readouterr().err == ""
