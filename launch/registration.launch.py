@@ -3,7 +3,8 @@
 Arguments (``name:=value``; ``ros2 launch ... --show-args`` lists them): see ARGUMENTS below and
 docs/BUILD.md. Each node gets its own ``state_dir`` by default,
 ``$ROS_HOME/rbc_registration/<namespace tokens>.<node_name>`` (``ROS_HOME`` default ``~/.ros``)
-(:func:`rbc_registration.io.state_paths.default_state_dir`), so two cells never share a journal::
+(:func:`rbc_registration.pipeline.state_dir.default_state_dir`), so two cells never share a
+journal::
 
     ros2 launch rbc_registration registration.launch.py namespace:=cell_a
     ros2 launch rbc_registration registration.launch.py namespace:=cell_b dimension:=2
@@ -19,7 +20,7 @@ without ROS by test/test_launch_file.py).
 
 from typing import Mapping, Optional
 
-from rbc_registration.io.state_paths import default_state_dir, resolve_namespace, state_root
+from rbc_registration.pipeline.state_dir import default_state_dir, resolve_namespace, state_root
 
 PACKAGE = "rbc_registration"
 EXECUTABLE = "registration_node"

@@ -20,7 +20,7 @@ import types
 
 import pytest
 
-from rbc_registration.io.state_paths import default_state_dir
+from rbc_registration.pipeline.state_dir import default_state_dir
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LAUNCH_FILE = os.path.join(REPO, "launch", "registration.launch.py")

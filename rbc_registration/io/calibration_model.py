@@ -19,19 +19,16 @@ from ..pipeline.named import calibration_name_problem, is_calibration_name
 from ..pipeline.settings import Settings
 from ..pipeline.snapshot import SNAPSHOT_FORMAT
 from ..pipeline.state import ModelState
+from ..pipeline.state_dir import CALIBRATIONS_DIR, StateDir
 from .calibration import REGISTRATIONS, Calibration, Decision, calibration_from_registration
 from .calibration_answers import answers_of_model
 from .calibration_format import _quote, check_number
 
-#: The calibration file ``~/save`` writes into ``state_dir``.
-CALIBRATION_NAME = "calibration.yaml"
-#: The directory in ``state_dir`` of named calibrations (``calibration_name``), ``NAME.yaml``.
-CALIBRATIONS_DIR = "calibrations"
 
 
 def calibration_path(state_dir: str) -> str:
     """Path of the calibration file in ``state_dir``."""
-    return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), CALIBRATION_NAME)
+    return StateDir.resolve(state_dir).calibration
 
 
 def named_calibration_path(state_dir: str, name: str) -> str:
@@ -43,8 +40,7 @@ def named_calibration_path(state_dir: str, name: str) -> str:
     problem = calibration_name_problem(name)
     if problem:
         raise ValueError(problem)
-    return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), CALIBRATIONS_DIR,
-                        f"{name}.yaml")
+    return StateDir.resolve(state_dir).named_calibration(name)
 
 
 def resolve_calibration_file(value: str, state_dir: str) -> str:

@@ -37,8 +37,8 @@ from ..core.measurements.records import REJECT_REASONS, FiducialRepeats
 from ..core.rigid.registration import Registration
 from ..core.measurements.sessions import Bump
 from .files import read_regular
+from .state_dir import CHECKPOINT_NAME, StateDir  # noqa: F401  (the name, also importable here)
 
-CHECKPOINT_NAME = "checkpoint.json"
 CHECKPOINT_FORMAT = "rbc_registration checkpoint 1"
 #: A checkpoint holds O(fiducials x (sessions + duplicate window)) values.
 MAX_CHECKPOINT_BYTES = 1 << 29
@@ -65,7 +65,7 @@ class Checkpoint(NamedTuple):
 
 def checkpoint_path(state_dir: str) -> str:
     """Path of the checkpoint in ``state_dir``."""
-    return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), CHECKPOINT_NAME)
+    return StateDir.resolve(state_dir).checkpoint
 
 
 def setup_of(acc: FiducialAccumulator, header: dict[str, Any]) -> dict[str, Any]:

@@ -16,12 +16,12 @@ import os
 import stat
 from typing import Optional
 from ..core.errors import InputError
+from .state_dir import LOCK_NAME
 
 #: Files of ``state_dir`` are created with these permissions (the umask cannot widen them, and
 #: they are set again with ``fchmod``/``chmod`` so a restrictive umask cannot narrow them either).
 FILE_MODE = 0o600
 DIR_MODE = 0o700
-LOCK_NAME = "lock"
 
 
 class NotARegularFile(InputError):

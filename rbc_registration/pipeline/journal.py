@@ -51,12 +51,13 @@ import zlib
 from typing import Any, Iterable, Optional
 
 from ..core.measurements.accumulator import Record
-from .checkpoint import CHECKPOINT_NAME, JournalPosition
+from .checkpoint import JournalPosition
 from .files import open_private, private_dir, read_fd
-from .journal_records import (JOURNAL_NAME, JOURNAL_VERSION, MAX_JOURNAL_BYTES, MAX_LINE_BYTES,
+from .journal_records import (JOURNAL_VERSION, MAX_JOURNAL_BYTES, MAX_LINE_BYTES,
                               READABLE_VERSIONS, JournalMismatch, parse_line, record_from_json,
                               record_to_json, seal, setup_digest, unseal)
-from .snapshot import SNAPSHOT_NAME, fsync_dir, write_atomic
+from .snapshot import fsync_dir, write_atomic
+from .state_dir import CHECKPOINT_NAME, JOURNAL_NAME, SNAPSHOT_NAME
 
 #: How the journal is opened for appending (created when missing).
 _APPEND_OR_CREATE = os.O_RDWR | os.O_APPEND | os.O_CREAT

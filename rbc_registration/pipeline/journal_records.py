@@ -14,8 +14,8 @@ from typing import Any, Optional
 
 from ..core.errors import InputError
 from ..core.measurements.accumulator import EnabledChange, Measurement, Record
+from .state_dir import JOURNAL_NAME  # noqa: F401  (the journal's file name, also importable here)
 
-JOURNAL_NAME = "journal.jsonl"
 JOURNAL_VERSION = 2
 #: Versions this module reads (1: without record checksums, rewritten as 2 on load).
 READABLE_VERSIONS = (1, 2)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from functools import cached_property
 from typing import Any, Mapping, NamedTuple, Optional
 
 from ..core.constants import (DECISION_MODES, INTERPOLATIONS, MAX_RESTORATION_STEPS,
@@ -18,6 +19,7 @@ from ..core.frames import frame_id_problem, same_frame_problem
 from ..core.measurements.records import quote
 from .named import (calibration_name_problem, is_calibration_name, parse_target_frames,
                     target_frames_problem)
+from .state_dir import StateDir
 
 
 class Spec(NamedTuple):
@@ -40,7 +42,7 @@ class Spec(NamedTuple):
 TF_MODES = ("corrected", "uncorrected", "none")
 RELIABILITIES = ("reliable", "best_effort")
 #: ``state_dir`` value meaning "derived from the node's namespace and name"
-#: (:func:`rbc_registration.io.state_paths.default_state_dir`).
+#: (:func:`rbc_registration.pipeline.state_dir.default_state_dir`).
 STATE_DIR_AUTO = "auto"
 POINT_MODES = ("pair", "sample")      # point_mode: pair points by stamp, or on ~/take_sample only
 SAMPLE_SOURCES = ("topic", "tf")      # sample_destination_source
@@ -279,6 +281,12 @@ class Settings:
             if isinstance(spec.default, tuple):
                 merged[name] = tuple(merged[name] or ())
         return cls(**{f.name: merged[f.name] for f in fields(cls)})
+
+    @cached_property
+    def state_files(self) -> Optional[StateDir]:
+        """``state_dir`` resolved once, with the paths of its files
+        (:class:`~.state_dir.StateDir`); None when ``state_dir`` is empty (nothing persists)."""
+        return StateDir.resolve(self.state_dir) if self.state_dir else None
 
     def replace(self, **changes: Any) -> "Settings":
         """A copy with ``changes`` applied and validated.

@@ -24,11 +24,11 @@ from typing import TYPE_CHECKING, Any, BinaryIO, Callable
 from .files import check_regular, open_private, read_regular
 from .jsonable import json_clean, registration_json
 from .settings import SPECS
+from .state_dir import CHECKPOINT_NAME, SNAPSHOT_NAME, StateDir
 
 if TYPE_CHECKING:
     from .state import ModelState
 
-SNAPSHOT_NAME = "calibration.json"
 SNAPSHOT_FORMAT = "rbc_registration calibration 1"
 #: A snapshot larger than this is not read (a device or a runaway file is not parsed).
 MAX_SNAPSHOT_BYTES = 1 << 30
@@ -129,7 +129,8 @@ def start_warnings(state_dir: str, settings: Any) -> list[str]:
 
 def _tidy(state_dir: str) -> tuple[list[str], dict[str, Any] | None]:
     """:func:`tidy_state_dir`'s warnings and the snapshot it read (None: none, or moved aside)."""
-    directory = os.path.abspath(os.path.expanduser(state_dir))
+    files = StateDir.resolve(state_dir)
+    directory = files.root
     if not os.path.isdir(directory):
         return [], None
     warnings = []
@@ -138,10 +139,10 @@ def _tidy(state_dir: str) -> tuple[list[str], dict[str, Any] | None]:
             os.unlink(os.path.join(directory, name))
             warnings.append(f"removed {name}: a snapshot write was interrupted (ignored; the "
                             f"model is rebuilt from the journal)")
-        elif name.startswith("checkpoint.json.tmp."):     # pipeline/checkpoint.py's file
+        elif name.startswith(f"{CHECKPOINT_NAME}.tmp."):
             os.unlink(os.path.join(directory, name))
             warnings.append(f"removed {name}: a checkpoint write was interrupted (ignored)")
-    path = os.path.join(directory, SNAPSHOT_NAME)
+    path = files.snapshot
     snapshot = None
     if os.path.lexists(path):
         try:
@@ -199,7 +200,7 @@ def _settings_diff(snapshot: dict[str, Any] | None, settings: Any, path: str) ->
 
 def snapshot_path(state_dir: str) -> str:
     """Path of the calibration snapshot in ``state_dir``."""
-    return os.path.join(os.path.abspath(os.path.expanduser(state_dir)), SNAPSHOT_NAME)
+    return StateDir.resolve(state_dir).snapshot
 
 
 def snapshot_json(state: ModelState, working_frame: str, destination_frame: str,

@@ -1,18 +1,33 @@
-"""Default ``state_dir`` of a registration node, derived from its namespace and name, so that two
-cells (two nodes) never share a journal. Pure Python; used by launch/registration.launch.py.
+"""A node's ``state_dir``: resolved once into a :class:`StateDir` that names every file in it,
+and its default, derived from the node's namespace and name so that two cells (two nodes) never
+share a journal. Pure Python; used by launch/registration.launch.py too.
 
-``~/.ros/rbc_registration/<namespace tokens>.<name>``, e.g. ``/cell_a/registration_node`` ->
-``~/.ros/rbc_registration/cell_a.registration_node`` and ``/registration_node`` ->
-``~/.ros/rbc_registration/registration_node``. The separator ``.`` cannot occur in a ROS name, so
-different nodes always get different directories (``/a_b/c`` and ``/a/b_c`` are ``a_b.c`` and
-``a.b_c``).
+The files (one name each, here only): ``journal.jsonl`` (every accepted measurement),
+``calibration.json`` (the snapshot of the last model), ``checkpoint.json`` (the accumulator's
+sums at a journal position), ``lock`` (one writer), ``calibration.yaml`` (``~/save``) and
+``calibrations/NAME.yaml`` (``~/save`` with ``calibration_name``).
+
+The default: ``~/.ros/rbc_registration/<namespace tokens>.<name>``, e.g.
+``/cell_a/registration_node`` -> ``~/.ros/rbc_registration/cell_a.registration_node`` and
+``/registration_node`` -> ``~/.ros/rbc_registration/registration_node``. The separator ``.``
+cannot occur in a ROS name, so different nodes always get different directories (``/a_b/c``
+and ``/a/b_c`` are ``a_b.c`` and ``a.b_c``).
 """
 
 from __future__ import annotations
 
 import os
 import re
+from dataclasses import dataclass
 from typing import Mapping, Optional
+
+JOURNAL_NAME = "journal.jsonl"
+SNAPSHOT_NAME = "calibration.json"
+CHECKPOINT_NAME = "checkpoint.json"
+LOCK_NAME = "lock"
+#: The calibration file ``~/save`` writes; named calibrations go to :data:`CALIBRATIONS_DIR`.
+CALIBRATION_NAME = "calibration.yaml"
+CALIBRATIONS_DIR = "calibrations"
 
 STATE_ROOT = "~/.ros/rbc_registration"  # '~' is expanded by the node (state_dir parameter)
 SEPARATOR = "."                          # not a character of ROS names: the mapping is one-to-one
@@ -86,3 +101,60 @@ def default_state_dir(namespace: str, name: str, pushed: Optional[str] = None,
     :raises ValueError: when the namespace or name is not a valid ROS name.
     """
     return os.path.join(root, state_dir_name(namespace, name, pushed))
+
+
+@dataclass(frozen=True)
+class StateDir:
+    """A ``state_dir`` resolved once (``~`` expanded, absolute) and the paths of its files.
+
+    :ivar root: the directory, absolute.
+    """
+
+    root: str
+
+    @classmethod
+    def resolve(cls, path: str) -> "StateDir":
+        """The state directory at ``path`` (``~`` expanded, made absolute; nothing created).
+
+        :raises ValueError: for an empty path (no state_dir: nothing persists).
+        """
+        if not path:
+            raise ValueError("state_dir is empty: no state directory")
+        return cls(os.path.abspath(os.path.expanduser(path)))
+
+    def _file(self, name: str) -> str:
+        return os.path.join(self.root, name)
+
+    @property
+    def journal(self) -> str:
+        """``journal.jsonl``: every accepted measurement, the record."""
+        return self._file(JOURNAL_NAME)
+
+    @property
+    def snapshot(self) -> str:
+        """``calibration.json``: the snapshot of the last model."""
+        return self._file(SNAPSHOT_NAME)
+
+    @property
+    def checkpoint(self) -> str:
+        """``checkpoint.json``: the accumulator's sums at a journal position."""
+        return self._file(CHECKPOINT_NAME)
+
+    @property
+    def lock(self) -> str:
+        """``lock``: held by the one node writing here."""
+        return self._file(LOCK_NAME)
+
+    @property
+    def calibration(self) -> str:
+        """``calibration.yaml``: what ``~/save`` writes without ``calibration_name``."""
+        return self._file(CALIBRATION_NAME)
+
+    @property
+    def calibrations(self) -> str:
+        """``calibrations/``: the named calibrations."""
+        return self._file(CALIBRATIONS_DIR)
+
+    def named_calibration(self, name: str) -> str:
+        """``calibrations/NAME.yaml`` (``name`` is checked by the caller)."""
+        return os.path.join(self.calibrations, f"{name}.yaml")

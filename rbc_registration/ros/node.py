@@ -35,7 +35,6 @@ from rbc_registration_interfaces.srv import (CorrectTarget, CorrectTargets, GetF
 from ..core.measurements.accumulator import FiducialAccumulator
 from ..core.measurements.pairing import DESTINATION, WORKING, StampPairer
 from ..core.measurements.records import RejectedMeasurement, quote
-from ..pipeline.checkpoint import checkpoint_path
 from ..pipeline.files import StateDirLock
 from ..pipeline.health import HealthMonitor
 from ..pipeline.ingest import Ingest
@@ -293,7 +292,7 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             text = self._ingest.checkpoint_text()
             with self._snapshot_lock:
                 if text and item[1] == self._generation:
-                    write_atomic(checkpoint_path(self._settings.state_dir), text)
+                    write_atomic(self._settings.state_files.checkpoint, text)
         return path
 
     def _on_worker_error(self, exc: BaseException) -> None:

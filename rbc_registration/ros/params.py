@@ -8,7 +8,7 @@ from __future__ import annotations
 import difflib
 from typing import Any, Iterable
 
-from ..io.state_paths import default_state_dir, state_root
+from ..pipeline.state_dir import default_state_dir, state_root
 from ..pipeline.settings import REMOVED, SPECS, STATE_DIR_AUTO, Settings
 
 #: Parameters rclpy itself declares or reads (never reported as unknown).
@@ -65,7 +65,7 @@ def declare(node: Any) -> Settings:
     """Declare every parameter on ``node`` (an ``rclpy.node.Node``) with its descriptor and
     return the validated :class:`Settings` (overrides from the command line or a YAML file
     included). ``state_dir`` ``auto`` becomes the node's own directory,
-    ``<state_root()>/<namespace tokens>.<node name>`` (:mod:`rbc_registration.io.state_paths`).
+    ``<state_root()>/<namespace tokens>.<node name>`` (:mod:`rbc_registration.pipeline.state_dir`).
 
     :raises ValueError: when a starting value is invalid, or a removed parameter
         (:data:`~rbc_registration.pipeline.settings.REMOVED`) is given (the node refuses to

@@ -13,7 +13,7 @@ import numpy as np
 from rbc_registration_interfaces.msg import RegistrationStatus
 
 from ..pipeline.named import parse_target_frames
-from ..pipeline.snapshot import snapshot_json, snapshot_path
+from ..pipeline.snapshot import snapshot_json
 from ..pipeline.state import ModelState
 from . import conversions as conv
 from .markers import markers_msg
@@ -194,7 +194,7 @@ class PublishingMixin:
         """Write the snapshot of ``(state, generation)`` unless ``~/reset`` came since."""
         state, generation = item
         s = self._settings
-        path = snapshot_path(s.state_dir)
+        path = s.state_files.snapshot
         text = snapshot_json(state, s.working_frame, s.destination_frame, s.dimension)
         with self._snapshot_lock:
             if generation != self._generation:

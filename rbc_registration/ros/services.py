@@ -19,7 +19,6 @@ import re
 from ..core.measurements.records import RejectedMeasurement
 from ..core.rigid.scale import unit_mismatch
 from ..pipeline.residuals import fiducial_residuals
-from ..pipeline.snapshot import snapshot_path
 from ..pipeline.state import EMPTY_STATE, session_mismatch
 from . import conversions as conv
 from . import samples, saved
@@ -178,7 +177,7 @@ class ServicesMixin:
             response.success, response.message = False, "state_dir is not set: nothing to save to"
             return response
         state = self._state
-        snapshot = snapshot_path(self._settings.state_dir)
+        snapshot = self._settings.state_files.snapshot
         previous = self._snapshots.last_error
         self._snapshots.submit((state, self._generation))   # written in the snapshot thread
         note = f"snapshot queued as {snapshot}" + (

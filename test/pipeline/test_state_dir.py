@@ -1,4 +1,4 @@
-"""Default state_dir per node (rbc_registration.io.state_paths): one directory per namespace and
+"""The state directory (rbc_registration.pipeline.state_dir): its files, and the default state_dir per node: one directory per namespace and
 name, never shared, and launch_ros's namespace rules."""
 
 import itertools
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rbc_registration.io.state_paths import (STATE_ROOT, check_node_name, default_state_dir,
+from rbc_registration.pipeline.state_dir import (STATE_ROOT, check_node_name, default_state_dir,
                                              resolve_namespace, state_dir_name)
 
 
@@ -82,3 +82,28 @@ def test_two_cells_of_a_launch_example():
     assert len(dirs) == 3
     for (a, b) in itertools.combinations(sorted(dirs), 2):
         assert not b.startswith(a + "/")  # neither is inside the other
+
+
+def test_a_state_dir_is_resolved_once_and_names_every_file(tmp_path, monkeypatch):
+    from rbc_registration.pipeline.settings import Settings
+    from rbc_registration.pipeline.state_dir import StateDir
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    files = StateDir.resolve("~/cell_a")
+    root = str(tmp_path / "cell_a")
+    assert files.root == root
+    assert (files.journal, files.snapshot, files.checkpoint, files.lock, files.calibration) == (
+        f"{root}/journal.jsonl", f"{root}/calibration.json", f"{root}/checkpoint.json",
+        f"{root}/lock", f"{root}/calibration.yaml")
+    assert files.named_calibration("line3") == f"{root}/calibrations/line3.yaml"
+    assert Settings.from_mapping({"state_dir": "~/cell_a"}).state_files == files
+    assert Settings.from_mapping({"state_dir": ""}).state_files is None
+    with pytest.raises(ValueError, match="state_dir is empty"):
+        StateDir.resolve("")
+
+
+def test_the_default_is_still_importable_where_launch_files_import_it():
+    from rbc_registration.io import state_paths
+    from rbc_registration.pipeline import state_dir
+
+    assert state_paths.default_state_dir is state_dir.default_state_dir
