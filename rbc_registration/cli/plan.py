@@ -34,7 +34,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--candidates", type=Path, required=True,
                    help="CSV: id,wx,wy[,wz][,group]: locations that could be measured next "
                         "(working frame; approximate is enough); a group (e.g. a robot pose) "
-                        "is ranked and measured as a whole")
+                        "is ranked and measured as a whole; at most 1,000,000 rows "
+                        "(io.csv_io.MAX_CANDIDATE_ROWS)")
     p.add_argument("--targets", type=Path, help="CSV: id,wx,wy[,wz]: the targets that matter "
                                                 "(default: the work volume)")
     p.add_argument("--count", type=int, help=f"suggestions in order, each conditioned on the "
@@ -77,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.model import build_model
     from ..core.model_planner import calibrated, plan_from_model
     from ..core.planner import PlanConfig, overlap_notes, typical_repeats
-    from ..io.csv_io import read_targets, target_sessions
+    from ..io.csv_io import MAX_CANDIDATE_ROWS, read_targets, target_sessions
     from ..io.csv_stream import read_fiducial_sums
     from ..io.plan_report import format_plan, plan_report
     from ..io.report import write_json
@@ -103,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     for note in fid.notes:
         warn("plan", note)
     cand = read_targets(args.candidates, fid.dimension, args.outlier_distance, "candidate",
-                        fid.working, sessions=fid.sessions)
+                        fid.working, sessions=fid.sessions, max_rows=MAX_CANDIDATE_ROWS)
     for note in overlap_notes(fid.working, fid.ids, cand.working, cand.ids):
         warn("plan", note)
     tgt = read_targets(args.targets, fid.dimension, args.outlier_distance,

@@ -36,6 +36,9 @@ from ..pipeline.targets import first_conflict, mean_by_id, rows_by_id
 PathLike = Union[str, Path]
 #: Largest CSV file read (1 GiB: some 10 million rows).
 MAX_CSV_BYTES = 1 << 30
+#: Most rows of a candidates file ``plan`` reads: a longer file is refused at the row past it,
+#: the rest not read.
+MAX_CANDIDATE_ROWS = 1_000_000
 #: A repeat of one id farther than this fraction of the typical fiducial spacing from the mean of
 #: the id's earlier rows: a conflict in the destination frame (two different points, one id), an
 #: outlier in the working frame (the node's ``outlier_distance`` rule, relative to the spacing).
@@ -92,21 +95,29 @@ class TargetTable:
     groups: Optional[tuple[str, ...]] = None
 
 
-def _read_rows(path: PathLike, required: list[str]
+def _read_rows(path: PathLike, required: list[str], max_rows: Optional[int] = None,
+               kind: str = "data"
                ) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
     """The header and the data rows, each with its line in the file (the header is line 1;
     blank lines, which ``csv.DictReader`` skips, still count), for the messages' ``row N``.
     Rows whose every field is empty or blank (``,,,,``, as spreadsheets export trailing rows)
-    are skipped like blank lines."""
+    are skipped like blank lines. More than ``max_rows`` rows are refused at the row past the
+    limit, reading no further."""
     p = Path(path)
     try:
         check_input_file(str(p), MAX_CSV_BYTES)
         with p.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             header = [h.strip() for h in (reader.fieldnames or [])]
-            rows = [(reader.line_num, {(k or "").strip(): (v or "").strip()
-                                       if isinstance(v, str) else v for k, v in row.items()})
-                    for row in reader]
+            rows = []
+            for row in reader:
+                if max_rows is not None and len(rows) >= max_rows:
+                    raise CsvError(f"{p}: more than {max_rows:,} {kind} rows (row "
+                                   f"{reader.line_num}): refused, the rest not read; split "
+                                   "the file or thin it out")
+                rows.append((reader.line_num, {(k or "").strip(): (v or "").strip()
+                                               if isinstance(v, str) else v
+                                               for k, v in row.items()}))
         rows = [(line, row) for line, row in rows if any(
             v for v in row.values() if isinstance(v, str)) or any(
             x.strip() for v in row.values() if isinstance(v, list) for x in v)]
@@ -492,7 +503,8 @@ def _central_first(group: list[tuple[int, list[float], list[float]]]) -> list[in
 
 def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = None,
                  kind: str = "target", fiducials: Optional[ArrayLike] = None,
-                 sessions: Optional[SessionPlan] = None) -> TargetTable:
+                 sessions: Optional[SessionPlan] = None,
+                 max_rows: Optional[int] = None) -> TargetTable:
     """Read TARGETS.csv: ``id,wx,wy[,wz]`` and optionally ``dx,dy[,dz]`` (truth) and ``group``
     (CANDIDATES.csv: the candidates measured together, one robot pose; every row of an id in
     one group).
@@ -511,10 +523,13 @@ def read_targets(path: PathLike, dim: int, outlier_distance: Optional[float] = N
     :param sessions: the fiducials' session plan (``FiducialTable.sessions``): rows of a
         ``session`` column are mapped into its reference session's frame before they are
         checked and averaged; rows without a session are in the reference session.
-    :raises CsvError: naming the file, row and column of the first problem, and a session the
-        fiducials do not have or left out.
+    :param max_rows: the most rows read (:data:`MAX_CANDIDATE_ROWS` for candidates); more are
+        refused at the row past it.
+    :raises CsvError: naming the file, row and column of the first problem, a session the
+        fiducials do not have or left out, and rows past ``max_rows``.
     """
-    header, rows = _read_rows(path, ["id", "wx", "wy"] + (["wz"] if dim == 3 else []))
+    header, rows = _read_rows(path, ["id", "wx", "wy"] + (["wz"] if dim == 3 else []),
+                              max_rows, kind)
     axes = "xyz"[:dim]
     has_truth = all(f"d{a}" in header for a in axes)
     partial = [f"d{a}" for a in axes if f"d{a}" in header]

@@ -15,7 +15,7 @@ from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.core.synthetic.structure import make_robot_cell, moved_sessions
 from rbc_registration.io import csv_stream
 from rbc_registration.io import progress as progress_module
-from rbc_registration.io.csv_io import CsvError, read_fiducials
+from rbc_registration.io.csv_io import MAX_CANDIDATE_ROWS, CsvError, read_fiducials, read_targets
 from rbc_registration.io.csv_stream import FiducialSums, read_fiducial_sums
 
 
@@ -260,3 +260,21 @@ def test_reading_with_progress_prints_nothing_when_piped(cases, capsys):
     path = cases[0][0]
     assert read_fiducial_sums(path, progress=True).ids == read_fiducials(path).ids
     assert capsys.readouterr().err == ""
+
+
+def test_a_candidates_file_past_the_limit_is_refused_reading_no_further(tmp_path, capsys):
+    path = tmp_path / "candidates.csv"
+    rows = "".join(f"C{k},{k},0,0\n" for k in range(5))
+    # 1 MB of rows past the limit, then bytes that are no UTF-8: reading on would fail on them
+    path.write_bytes(b"id,wx,wy,wz\n" + rows.encode() + b"C8,1,0,0\n" * 100_000
+                     + b"C9,\xff\xfe,0,0\n")
+    with pytest.raises(CsvError, match=r"more than 5 candidate rows \(row 7\): refused") as exc:
+        read_targets(path, 3, kind="candidate", max_rows=5)
+    assert len(str(exc.value).splitlines()) == 1
+    ok = tmp_path / "ok.csv"
+    ok.write_text("id,wx,wy,wz\n" + rows)
+    assert read_targets(ok, 3, kind="candidate", max_rows=5).ids == tuple(
+        f"C{k}" for k in range(5))
+    with pytest.raises(SystemExit):
+        main(["plan", "--help"])
+    assert f"at most {MAX_CANDIDATE_ROWS:,} rows" in capsys.readouterr().out.replace("\n", " ")
