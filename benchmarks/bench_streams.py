@@ -64,8 +64,8 @@ def write_csv(path: Path, rows: int, fiducials: int = 50) -> None:
                           for j in range(fiducials))
 
 
-def measure(args: list[str]) -> tuple[float, float]:
-    """Wall time [s] and peak RSS [MB] of a child process."""
+def measure(args: list[str]) -> tuple[float, float, float]:
+    """Wall time [s], CPU time (user + system) [s] and peak RSS [MB] of a child process."""
     start = time.perf_counter()
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(proc.pid, 0)
@@ -73,7 +73,7 @@ def measure(args: list[str]) -> tuple[float, float]:
     err = proc.stderr.read().decode() if proc.stderr else ""
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f"{' '.join(args)} failed: {err}")
-    return wall, usage.ru_maxrss / 1024.0
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0
 
 
 def main() -> int:
@@ -84,18 +84,23 @@ def main() -> int:
     args = parser.parse_args()
     args.dir.mkdir(parents=True, exist_ok=True)
     cli = [PY, "-m", "rbc_registration.cli"]
-    lines = ["| input | size | bare read | time | ratio | bare RSS MB | RSS MB |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| input | size | bare read: wall (CPU) | wall (CPU) | ratio: wall (CPU) | "
+             "bare RSS MB | RSS MB |", "|---|---:|---:|---:|---:|---:|---:|"]
+
+    def row(what: str, size: str, bare: tuple, tool: tuple) -> str:
+        return (f"| {what} | {size} | {bare[0]:.2f} s ({bare[1]:.2f} s) | {tool[0]:.2f} s "
+                f"({tool[1]:.2f} s) | {tool[0] / bare[0]:.2f} ({tool[1] / bare[1]:.2f}) | "
+                f"{bare[2]:.0f} | {tool[2]:.0f} |")
+
     rss = {}
     for rows in args.rows:
         path = args.dir / f"fiducials_{rows}.csv"
         if not path.exists():
             write_csv(path, rows)
-        bare_t, bare_m = measure([PY, "-c", BARE_CSV, str(path)])
-        t, m = measure(cli + ["register", str(path)])
-        rss.setdefault("register", []).append(m)
-        lines.append(f"| register CSV | {rows:,} rows | {bare_t:.2f} s | {t:.2f} s | "
-                     f"{t / bare_t:.2f} | {bare_m:.0f} | {m:.0f} |")
+        bare = measure([PY, "-c", BARE_CSV, str(path)])
+        tool = measure(cli + ["register", str(path)])
+        rss.setdefault("register", []).append(tool[2])
+        lines.append(row("register CSV", f"{rows:,} rows", bare, tool))
         print(lines[-1], flush=True)
     for repeats in args.repeats:
         bag = args.dir / f"bag_B_{repeats}"
@@ -104,14 +109,14 @@ def main() -> int:
                                   str(repeats), "--period", "0.001", "--storage", "mcap",
                                   "--quiet"], check=True, stdout=subprocess.DEVNULL)
         messages = 141 * repeats
-        bare_t, bare_m = measure([PY, "-c", BARE_BAG, str(bag)])
-        t, m = measure(cli + ["evaluate", str(bag), "--quiet"])
-        rss.setdefault("evaluate", []).append(m)
-        lines.append(f"| evaluate mcap bag | {messages:,} messages | {bare_t:.2f} s | "
-                     f"{t:.2f} s | {t / bare_t:.2f} | {bare_m:.0f} | {m:.0f} |")
+        bare = measure([PY, "-c", BARE_BAG, str(bag)])
+        tool = measure(cli + ["evaluate", str(bag), "--quiet"])
+        rss.setdefault("evaluate", []).append(tool[2])
+        lines.append(row("evaluate mcap bag", f"{messages:,} messages", bare, tool))
         print(lines[-1], flush=True)
     print()
     print("\n".join(lines))
+    print(f"load average (1 min) at the end: {os.getloadavg()[0]:.1f}")
     for name, values in rss.items():
         if len(values) > 1:
             print(f"{name}: peak RSS of the largest / the smallest input "
