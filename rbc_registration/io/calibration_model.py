@@ -225,41 +225,9 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
                          f"got {registration!r}")
     snapshot = data.get("format") == SNAPSHOT_FORMAT
     notes: list[str] = []   # said once the calibration is built, not before an error
-    if snapshot:
-        if not data.get("model_valid"):
-            raise ValueError(f"{where}: the snapshot holds no model ({data.get('error', '')})")
-        scale = _unit_scale(data, where, "units", unit, default="m")   # the format's metres
-        parent = parent_frame or _get(data, "destination_frame", where)
-        child = child_frame or _get(data, "working_frame", where)
-        stamp_ns = _number(data, "stamp_ns", where)
-        if not 0 <= stamp_ns <= _LAST_STAMP_NS:
-            raise ValueError(f"{where}: stamp_ns: out of range (0 to the year 9999), got "
-                             f"{stamp_ns:g}")
-        created_s = stamp_ns * 1e-9
-        ids = _get(data, "fiducial_ids", where)
-        if not isinstance(ids, list):
-            raise ValueError(f"{where}: fiducial_ids: must be a list, got {type(ids).__name__}")
-        n_fiducials = len(ids)
-        sigma_l = _numbers(data, "sigma_l", where)
-        same_fits = True        # the node fits both registrations to all fiducials
-    else:
-        scale = _unit_scale(data, where, "unit", unit)
-        parent = parent_frame or data.get("destination_frame")
-        child = child_frame or data.get("working_frame")
-        assumed = [f"{option} {default}" for option, frame, default in
-                   (("--parent-frame", parent, "world"), ("--child-frame", child, "tracker"))
-                   if frame is None]
-        if assumed:
-            notes.append(f"{where} records no frames (a register report, or an evaluate report "
-                         f"of an earlier version): {' '.join(assumed)} assumed (the node's "
-                         f"defaults); give the option to say which")
-        parent, child = parent or "world", child or "tracker"
-        created_s = time.time() if mtime is None else mtime
-        n_fiducials = _get(data, "n_fiducials", where)
-        sigma_l = _numbers(data, "sigma_L", where)
-        # an evaluate report (it has "bag") is the node's model: both fitted to all fiducials
-        same_fits = "bag" in data or ("uncorrected_fit" in data and "corrected_fit" in data
-                                      and data["uncorrected_fit"] == data["corrected_fit"])
+    source = (_snapshot_source(data, where, unit, parent_frame, child_frame) if snapshot else
+              _report_source(data, where, unit, parent_frame, child_frame, mtime, notes))
+    scale, parent, child, created_s, n_fiducials, sigma_l, same_fits = source
     reg = _get(data, registration, where)
     sigma = None if data.get("sigma") is None else _number(data, "sigma", where)
     figures = _document_decision(data, where, scale)
@@ -292,6 +260,61 @@ def calibration_from_document(data: Any, where: str, registration: str = "correc
     for line in notes:
         note(line)
     return cal
+
+
+class _Source(NamedTuple):
+    """What a snapshot or a report gives beside its registrations (lengths x ``scale`` in m)."""
+
+    scale: float
+    parent: str
+    child: str
+    created_s: float
+    n_fiducials: Any
+    sigma_l: list
+    same_fits: bool     # both registrations fitted to the same fiducials
+
+
+def _snapshot_source(data: Mapping[str, Any], where: str, unit: Optional[str],
+                     parent_frame: Optional[str], child_frame: Optional[str]) -> _Source:
+    """A node snapshot's frames, stamp, fiducial count and sigma_L (its units: metres)."""
+    if not data.get("model_valid"):
+        raise ValueError(f"{where}: the snapshot holds no model ({data.get('error', '')})")
+    scale = _unit_scale(data, where, "units", unit, default="m")   # the format's metres
+    parent = parent_frame or _get(data, "destination_frame", where)
+    child = child_frame or _get(data, "working_frame", where)
+    stamp_ns = _number(data, "stamp_ns", where)
+    if not 0 <= stamp_ns <= _LAST_STAMP_NS:
+        raise ValueError(f"{where}: stamp_ns: out of range (0 to the year 9999), got "
+                         f"{stamp_ns:g}")
+    ids = _get(data, "fiducial_ids", where)
+    if not isinstance(ids, list):
+        raise ValueError(f"{where}: fiducial_ids: must be a list, got {type(ids).__name__}")
+    # the node fits both registrations to all fiducials
+    return _Source(scale, parent, child, stamp_ns * 1e-9, len(ids),
+                   _numbers(data, "sigma_l", where), True)
+
+
+def _report_source(data: Mapping[str, Any], where: str, unit: Optional[str],
+                   parent_frame: Optional[str], child_frame: Optional[str],
+                   mtime: Optional[float], notes: list[str]) -> _Source:
+    """A ``register`` / ``evaluate`` report's unit, frames (the node's defaults when it records
+    none, said in ``notes``), fiducial count and sigma_L; ``created`` from ``mtime`` or now."""
+    scale = _unit_scale(data, where, "unit", unit)
+    parent = parent_frame or data.get("destination_frame")
+    child = child_frame or data.get("working_frame")
+    assumed = [f"{option} {default}" for option, frame, default in
+               (("--parent-frame", parent, "world"), ("--child-frame", child, "tracker"))
+               if frame is None]
+    if assumed:
+        notes.append(f"{where} records no frames (a register report, or an evaluate report "
+                     f"of an earlier version): {' '.join(assumed)} assumed (the node's "
+                     f"defaults); give the option to say which")
+    # an evaluate report (it has "bag") is the node's model: both fitted to all fiducials
+    same_fits = "bag" in data or ("uncorrected_fit" in data and "corrected_fit" in data
+                                  and data["uncorrected_fit"] == data["corrected_fit"])
+    return _Source(scale, parent or "world", child or "tracker",
+                   time.time() if mtime is None else mtime, _get(data, "n_fiducials", where),
+                   _numbers(data, "sigma_L", where), same_fits)
 
 
 def check_matches(cal: Calibration, where: str, working_frame: str, destination_frame: str,
