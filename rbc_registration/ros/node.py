@@ -105,6 +105,34 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
 
     def _start(self, build: Optional[Callable[..., ModelState]],
                write_snapshot: Callable[[str, str], None], clock: Callable[[], float]) -> None:
+        """The node's start, in order: parameters (and a calibration file), shared state, the
+        journal and what it restores, the outputs, the inputs and services, what a loaded
+        calibration publishes, then the threads."""
+        self._declare()
+        # The default builder's child process (rebuild_worker) is killed in destroy_node.
+        self._builder = (ProcessBuilder(warn=self.get_logger().warning) if build is None
+                         else None)
+        self._build = build if build is not None else self._builder
+        self._write_snapshot = write_snapshot
+        self._pub_lock = threading.Lock()
+        # ~/reset against the snapshot thread: a snapshot is written only while its generation
+        # is current, and the reset archives the files and bumps the generation under it.
+        self._snapshot_lock = threading.Lock()
+        self._health = HealthMonitor(self._settings.stale_after)  # /diagnostics (pipeline.health)
+        self._state: ModelState = EMPTY_STATE
+        self._generation = 0  # bumped by ~/reset: a rebuild of an older generation is dropped
+        # The transforms /tf_static chooses from ({tf_broadcast: TransformStamped}); {} = none.
+        self._tf_transforms: dict[str, TransformStamped] = {}
+        restored = self._open_journal()
+        self._create_outputs()
+        self._create_inputs_and_services()
+        self.add_parameter_callbacks()
+        if self._loaded is not None:
+            self._publish_loaded()
+        self._start_threads(restored, clock)
+
+    def _declare(self) -> None:
+        """Parameters (refused, naming why, before anything starts) and a calibration file."""
         self._settings = params.declare(self)
         unknown = params.unknown_overrides(getattr(self, "_parameter_overrides", {}))
         if unknown:
@@ -115,20 +143,11 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         if samples.source_error(s.sample_destination_source):
             raise ValueError(samples.source_error(s.sample_destination_source))
         self._samples = samples.SampleTaker(self)
-        # The default builder's child process (rebuild_worker) is killed in destroy_node.
-        self._builder = (ProcessBuilder(warn=self.get_logger().warning) if build is None
-                         else None)
-        self._build = build if build is not None else self._builder
-        self._write_snapshot = write_snapshot
-        self._pub_lock = threading.Lock()
-        # ~/reset against the snapshot thread: a snapshot is written only while its generation
-        # is current, and the reset archives the files and bumps the generation under it.
-        self._snapshot_lock = threading.Lock()
-        self._health = HealthMonitor(s.stale_after)  # /diagnostics levels (pipeline.health)
-        self._state: ModelState = EMPTY_STATE
-        self._generation = 0  # bumped by ~/reset: a rebuild of an older generation is dropped
-        # The transforms /tf_static chooses from ({tf_broadcast: TransformStamped}); {} = none.
-        self._tf_transforms: dict[str, TransformStamped] = {}
+
+    def _open_journal(self) -> int:
+        """The accumulator, the writer's lock, the journal and the ingestion; returns the
+        measurements restored (from the checkpoint and the journal)."""
+        s = self._settings
         accumulator = FiducialAccumulator(s.dimension, s.working_frame, s.destination_frame,
                                           s.merge_radius, s.outlier_distance, s.max_stamp_age)
         journal = None
@@ -138,14 +157,15 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
             for warning in start_warnings(s.state_dir, s):
                 self.get_logger().warning(warning)
             journal = Journal(s.state_dir, {"working_frame": s.working_frame,
-                                                        "destination_frame": s.destination_frame,
-                                                        "dimension": s.dimension},
-                                          fsync=s.journal_fsync)
+                                            "destination_frame": s.destination_frame,
+                                            "dimension": s.dimension}, fsync=s.journal_fsync)
         self._ingest = Ingest(accumulator, StampPairer(s.pair_slop, s.point_buffer), journal,
                               self.get_logger(), lambda: self.get_clock().now().nanoseconds * 1e-9,
                               hold_s=s.sample_max_age if s.point_mode == "pair" else 0.0)
-        restored = self._ingest.restore()
+        return self._ingest.restore()
 
+    def _create_outputs(self) -> None:
+        """/tf_static and the publishers (latched where a late subscriber needs the last)."""
         self._tf = StaticTf(self)
         if not self._tf.available:
             self.get_logger().warning(f"static tf off: {self._tf.missing}; /tf_static is not "
@@ -159,6 +179,10 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self._pub_markers = publisher(MarkerArray, "~/markers", LATCHED)
         self._pub_diagnostics = publisher(DiagnosticArray, "/diagnostics", 10)
 
+    def _create_inputs_and_services(self) -> None:
+        """The input subscriptions, the services (each correction service in a lane of its
+        own) and the status timer."""
+        s = self._settings
         inputs, qos = MutuallyExclusiveCallbackGroup(), INPUT[s.input_reliability]
         for msg_type, topic, callback in (
                 (FiducialPair, "~/fiducial_pairs", self._on_fiducial_pair),
@@ -191,19 +215,24 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self.create_timer(s.status_period, self._publish_status,
                           callback_group=MutuallyExclusiveCallbackGroup(),
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.add_parameter_callbacks()
 
-        if self._loaded is not None:  # publish what was registered before, until a live model
-            transform = saved.calibration_transform(self._loaded.calibration,
-                                                    self.get_clock().now().to_msg())
-            # on the topic of the file's registration, so each topic keeps its meaning when the
-            # live model replaces the file; /tf_static holds it whichever tf_broadcast chooses
-            uncorrected = self._loaded.calibration.registration == "uncorrected"
-            with self._pub_lock:
-                (self._pub_transform_u if uncorrected else self._pub_transform).publish(transform)
-                self._tf_transforms = dict.fromkeys(("corrected", "uncorrected"), transform)
-                self._publish_tf()
-            self.get_logger().info(self._loaded.describe())
+    def _publish_loaded(self) -> None:
+        """What a loaded calibration file publishes until a live model replaces it."""
+        transform = saved.calibration_transform(self._loaded.calibration,
+                                                self.get_clock().now().to_msg())
+        # on the topic of the file's registration, so each topic keeps its meaning when the
+        # live model replaces the file; /tf_static holds it whichever tf_broadcast chooses
+        uncorrected = self._loaded.calibration.registration == "uncorrected"
+        with self._pub_lock:
+            (self._pub_transform_u if uncorrected else self._pub_transform).publish(transform)
+            self._tf_transforms = dict.fromkeys(("corrected", "uncorrected"), transform)
+            self._publish_tf()
+        self.get_logger().info(self._loaded.describe())
+
+    def _start_threads(self, restored: int, clock: Callable[[], float]) -> None:
+        """The snapshot writer, the planner and the recompute threads; a first rebuild of what
+        was restored; the first status and the start's log line."""
+        s = self._settings
         self._snapshots = LatestWriter(self._save_and_checkpoint, self._on_snapshot_error)
         self._start_planner()   # the planner's error model of every new model, in its thread
         self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
