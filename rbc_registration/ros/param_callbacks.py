@@ -21,6 +21,7 @@ from rclpy.parameter import Parameter
 
 from ..pipeline.settings import SPECS
 from . import params, samples
+from .parts import NodeParts
 
 
 class WrongTypeParameter(Parameter):
@@ -33,16 +34,11 @@ class WrongTypeParameter(Parameter):
         self.reason = reason
 
 
-class ParametersMixin:
+class ParametersMixin(NodeParts):
     """Parameter callbacks; the node provides ``_settings``, ``_ingest``, ``_pub_lock``,
     ``_publish_tf`` and ``_worker``, and registers the three callbacks with
     :meth:`add_parameter_callbacks`."""
 
-    _settings: Any
-    _ingest: Any
-    _pub_lock: Any
-    _worker: Any
-    _publish_tf: Any
 
     def add_parameter_callbacks(self: Any) -> None:
         """Register the pre-set, on-set and post-set callbacks (rclpy's public API)."""

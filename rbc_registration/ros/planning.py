@@ -19,6 +19,7 @@ from ..pipeline.planning import (NO_PLANNING, PlanningState, expected_error_now,
                                  request_error, suggest)
 from ..pipeline.state import ModelState
 from ..pipeline.worker import LatestWriter
+from .parts import NodeParts
 
 
 def points_to_array(points: Sequence[Point], dimension: int) -> NDArray[np.float64]:
@@ -27,13 +28,11 @@ def points_to_array(points: Sequence[Point], dimension: int) -> NDArray[np.float
         :, :dimension]
 
 
-class PlanningMixin:
+class PlanningMixin(NodeParts):
     """The planner; the node provides ``_state``, ``_settings`` and ``get_logger``, and calls
     :meth:`_start_planner` in its start, :meth:`_plan_model` with every new model state,
     :meth:`_expected_target_error` for its status, and stops ``_planner`` when destroyed."""
 
-    _state: Any
-    _settings: Any
     get_logger: Any
 
     def _start_planner(self) -> None:

@@ -19,9 +19,10 @@ from . import conversions as conv
 from .markers import markers_msg
 from .status import diagnostics_msg, health_of, status_msg
 from .tf_static import target_transforms
+from .parts import NodeParts
 
 
-class PublishingMixin:
+class PublishingMixin(NodeParts):
     """Publishing of a new model and of the status; the node provides the publishers
     (``_pub_transform``, ``_pub_transform_u``, ``_pub_markers``, ``_pub_status``,
     ``_pub_diagnostics``), ``_pub_lock``, ``_tf`` (:class:`~.tf_static.StaticTf`), ``_settings``,
@@ -29,26 +30,7 @@ class PublishingMixin:
     ``_write_snapshot`` and, from
     :class:`~.planning.PlanningMixin`, ``_plan_model`` and ``_expected_target_error``."""
 
-    _settings: Any
-    _state: Any
-    _ingest: Any
-    _health: Any
-    _pub_lock: Any
-    _pub_transform: Any
-    _pub_transform_u: Any
-    _pub_markers: Any
-    _pub_status: Any
-    _pub_diagnostics: Any
-    _tf: Any
-    _tf_transforms: dict
     _target_frame_names: frozenset = frozenset()   # the target frames on /tf_static now
-    _loaded: Any
-    _snapshots: Any
-    _snapshot_lock: Any
-    _generation: int
-    _write_snapshot: Any
-    _plan_model: Any
-    _expected_target_error: Any
     get_clock: Any
     get_logger: Any
     get_name: Any

@@ -23,6 +23,7 @@ from ..pipeline.state import EMPTY_STATE, session_mismatch
 from . import conversions as conv
 from . import samples, saved
 from .markers import markers_msg
+from .parts import NodeParts
 
 #: ``~/recompute`` answers at once with this text; the rebuild covering the request is done when
 #: ``~/status`` ``last_recompute`` is at or after the time it names (see
@@ -42,26 +43,12 @@ def rebuild_requested_ns(message: str) -> int:
     return int(match.group(1)) * 10**9 + int(match.group(2))
 
 
-class ServicesMixin:
+class ServicesMixin(NodeParts):
     """Service callbacks; the node provides ``_state``, ``_settings``, ``_ingest``, ``_worker``,
     ``_pub_lock``, ``_generation``, ``_snapshot_lock``, ``_pub_markers``, ``_publish_status``
     and ``_snapshots`` (a :class:`~rbc_registration.pipeline.worker.LatestWriter` of
     ``(state, generation)``)."""
 
-    _state: Any
-    _settings: Any
-    _ingest: Any
-    _worker: Any
-    _measurements_changed: Any
-    _pub_lock: Any
-    _generation: int
-    _snapshot_lock: Any
-    _pub_markers: Any
-    _tf_transforms: dict
-    _loaded: Any
-    _samples: Any
-    _publish_tf: Any
-    _snapshots: Any
 
     def _correct(self, targets: list[PointStamped]) -> tuple[list[Any], str, str]:
         """Answer from one snapshot of the model (or, until there is one, of a loaded
