@@ -60,6 +60,18 @@ MOVED = {
 }
 
 
+def names_of(package: str, module: str):
+    """A package's ``__getattr__`` that gives the names of its ``module`` on first use (the
+    parts named as the module they replace: ``interpolation``, ``decision``, ``synthetic``)."""
+
+    def forward(name: str):
+        if name.startswith("__"):
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        return getattr(import_module(f"{package}.{module}"), name)
+
+    return forward
+
+
 def __getattr__(name):
     if name in _EXPORTS:
         return getattr(import_module(f".{_EXPORTS[name]}", __name__), name)

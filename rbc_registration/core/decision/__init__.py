@@ -10,11 +10,6 @@ The names of :mod:`.choice` are importable from this package too
 (``from rbc_registration.core.decision import Decision``).
 """
 
-from importlib import import_module
+from .. import names_of
 
-
-def __getattr__(name):
-    """The names of :mod:`.choice`, loaded on first use."""
-    if name.startswith("__"):
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.choice"), name)
+__getattr__ = names_of(__name__, "choice")

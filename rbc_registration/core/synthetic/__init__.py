@@ -9,11 +9,6 @@ The names of :mod:`.cells` are importable from this package too
 (``from rbc_registration.core.synthetic import make_cell``).
 """
 
-from importlib import import_module
+from .. import names_of
 
-
-def __getattr__(name):
-    """The names of :mod:`.cells`, loaded on first use."""
-    if name.startswith("__"):
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.cells"), name)
+__getattr__ = names_of(__name__, "cells")
