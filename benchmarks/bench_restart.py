@@ -18,6 +18,9 @@ in shuffled rounds) is written with the node's own ``Journal`` into a fresh ``st
 (``VmRSS``; ``VmHWM`` is the peak).
 
     source scripts/env.sh && nice python benchmarks/bench_restart.py --pairs 100000 1000000
+
+``--journal-only``: only the part of a restart that grows with the journal, in a fresh process:
+``Journal.load_after`` at the journal's end (the CRC-32 pass, no tail), its time and RSS growth.
 """
 
 from __future__ import annotations
@@ -65,6 +68,41 @@ def write_journal(state_dir: str, pairs: int) -> float:
         done += n
     journal.close()
     return os.path.getsize(journal.path) / 1e6
+
+
+#: ``--journal-only``'s child: python -c LOAD_AFTER STATE_DIR OFFSET LINES RECORDS CRC.
+LOAD_AFTER = r"""
+import sys, time
+from rbc_registration.pipeline.checkpoint import JournalPosition
+from rbc_registration.pipeline.journal import Journal
+def mb(key):
+    return next(int(l.split()[1]) / 1024 for l in open("/proc/self/status") if l.startswith(key))
+journal = Journal(sys.argv[1], {"working_frame": "tracker", "destination_frame": "world",
+                                "dimension": 3})
+before = mb("VmRSS")
+t0 = time.perf_counter()
+tail = journal.load_after(JournalPosition(*map(int, sys.argv[2:6]), 0))
+took = time.perf_counter() - t0
+assert tail is not None and tail[0] == [], journal.mismatch
+print(f"{took:.3f} s, RSS {before:.0f} -> {mb('VmRSS'):.0f} MB (peak {mb('VmHWM'):.0f} MB)")
+"""
+
+
+def journal_only(pairs: int) -> None:
+    """Write a journal of ``pairs`` pairs, then time ``load_after`` at its end in a child."""
+    import subprocess
+    import zlib
+
+    work = tempfile.mkdtemp(prefix=f"bench_restart_{pairs}_")
+    size = write_journal(work, pairs)
+    crc = lines = 0
+    with open(os.path.join(work, "journal.jsonl"), "rb") as f:
+        while chunk := f.read(1 << 20):
+            crc, lines = zlib.crc32(chunk, crc), lines + chunk.count(b"\n")
+    offset = os.path.getsize(os.path.join(work, "journal.jsonl"))
+    out = subprocess.run([sys.executable, "-c", LOAD_AFTER, work, str(offset), str(lines),
+                          str(lines - 1), str(crc)], capture_output=True, text=True, check=True)
+    print(f"{pairs:,} pairs ({size:.0f} MB): Journal.load_after at the end: {out.stdout.strip()}")
 
 
 def proc_mb(pid: int, key: str) -> float:
@@ -247,7 +285,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--pairs", type=int, nargs="+", default=[100_000, 1_000_000])
     parser.add_argument("--live", type=int, default=2000, help="pairs the live node takes")
+    parser.add_argument("--journal-only", action="store_true",
+                        help="only Journal.load_after on each journal (module docstring)")
     args = parser.parse_args()
+    if args.journal_only:
+        for pairs in args.pairs:
+            journal_only(pairs)
+        return 0
     import rclpy
 
     rclpy.init()
