@@ -116,7 +116,6 @@ def run_planner(cell: Cell, start_idx: list[int], config: PlanConfig) -> dict:
             check[j] = {"expected": p.expected_now, "actual": tre[j],
                         "kriging": cell.tre_kriging(m), "method": m.decision.method,
                         "with_all": p.expected_with_all, "ratio": mc.ratio,
-                        "calibration": mc.calibration,
                         "trustworthy": mc.trustworthy}
         if p.enough and stop is None:
             stop = {"count": j, "tre": tre.get(j, cell.tre(m)), "rule": p.enough_rule,
@@ -237,9 +236,8 @@ def report(name: str, runs: list[dict]) -> list[str]:
               "order, mean over the seeds:", "",
               "| fiducials | expected | actual (served) | expected / actual (mean of the seeds' "
               "ratios) | actual, kriging-corrected | expected / kriging-corrected | served "
-              "kriging | held-out ratio (cross-validated / expected) | calibration (interior "
-              "held-out) | trusted |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "kriging | calibration (cross-validated / expected held-out) | trusted |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for j in CHECK_COUNTS:
         c = [r["planner"]["check"][str(j)] if str(j) in r["planner"]["check"]
              else r["planner"]["check"][j] for r in runs]
@@ -251,7 +249,6 @@ def report(name: str, runs: list[dict]) -> list[str]:
                      f"{np.mean([x['expected'] / k for x, k in zip(c, kr)]):.3f} | "
                      f"{sum(x.get('method') == 'kriging' for x in c)} of {len(c)} | "
                      f"{np.mean([x['ratio'] for x in c]):.3f} | "
-                     f"{np.mean([x.get('calibration', math.nan) for x in c]):.3f} | "
                      f"{sum(x['trustworthy'] for x in c)} of {len(c)} |")
     return lines
 

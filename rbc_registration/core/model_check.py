@@ -13,15 +13,8 @@ is measured: for the fiducials S of a fold, from the others,
   :mod:`.rigid_tre` over the other fiducials.
 
 ``ratio`` = (median cross-validated error) / (pooled expected median of the same held-out
-fiducials): how well the model predicts the errors it had not seen. ``calibration`` is the same
-ratio over the **interior** held-out fiducials (those that are not vertices of the fiducials'
-convex hull, so the others surround them as they surround a target), when at least
-:data:`INTERIOR_MIN_UNITS` of them are held out, else ``ratio``: a held-out hull vertex is an
-extrapolation, which the model can over- or underrate more than the points between fiducials
-that targets mostly are. It is the calibration of the plan's expected errors
-(``ExpectedErrorModel.calibration``): the plan's ``expected_now``, ``expected_after`` and
-``expected_with_all`` are the model's, times it. The stopping rules compare expected errors of
-one plan, so the factor does not move where they hold.
+fiducials). It is the calibration of the plan's expected errors (``ExpectedErrorModel.
+calibration``): the plan's ``expected_now`` and ``expected_with_all`` are the model's, times it.
 
 The error model is **trustworthy** when at least :data:`TRUST_MIN_UNITS` units were held out and
 the ratio is within :data:`TRUST_FACTOR` of 1 either way: then the model's split of the error
@@ -39,7 +32,6 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 import scipy.linalg
-import scipy.spatial
 from numpy.typing import NDArray
 from scipy.spatial.distance import cdist
 
@@ -57,8 +49,6 @@ TRUST_FACTOR = 1.25
 #: Fewest held-out units (fiducials, or groups held out whole) for the check to count: the
 #: median of fewer held-out errors is too uncertain to show the model right.
 TRUST_MIN_UNITS = 15
-#: Fewest interior held-out fiducials (not hull vertices) for ``calibration`` to be their ratio.
-INTERIOR_MIN_UNITS = 8
 #: Most fiducials the check is computed for (one factorisation of J x J per noise axis).
 CHECK_MAX_FIDUCIALS = 2000
 #: The candidate whose held-out errors the plan is checked against: the plans assume the
@@ -78,9 +68,6 @@ class ModelCheck(NamedTuple):
     :ivar trustworthy: at least :data:`TRUST_MIN_UNITS` units and the ratio within
         :data:`TRUST_FACTOR` of 1.
     :ivar note: why not available, or why not trustworthy ("" when trustworthy).
-    :ivar calibration: the factor on the plan's expected errors: the ratio over the interior
-        held-out fiducials (module docstring), else ``ratio``; 1 when not available.
-    :ivar interior: interior held-out fiducials (0 when not available).
     """
 
     available: bool
@@ -90,8 +77,6 @@ class ModelCheck(NamedTuple):
     ratio: float
     trustworthy: bool
     note: str
-    calibration: float = 1.0
-    interior: int = 0
 
     def to_dict(self) -> dict:
         """JSON-ready (NaN as None); ``factor`` and ``min_units`` are the rule's."""
@@ -102,9 +87,7 @@ class ModelCheck(NamedTuple):
                 "expected_held_out_median": num(self.expected_median),
                 "cross_validated_median": num(self.cross_validated_median),
                 "ratio": num(self.ratio), "factor": TRUST_FACTOR, "min_units": TRUST_MIN_UNITS,
-                "trustworthy": self.trustworthy, "note": self.note,
-                "calibration": num(self.calibration), "interior": self.interior,
-                "interior_min": INTERIOR_MIN_UNITS}
+                "trustworthy": self.trustworthy, "note": self.note}
 
 
 def _unavailable(note: str, units: int = 0) -> ModelCheck:
@@ -179,31 +162,7 @@ def check_model(model: RbcModel, error_model: ExpectedErrorModel) -> ModelCheck:
     if not 1 / TRUST_FACTOR <= ratio <= TRUST_FACTOR:
         notes.append(f"the cross-validated held-out errors are {ratio:.3g} x what the error "
                      f"model expects, not within {TRUST_FACTOR:g} x")
-    inner = interior(model.working)
-    if inner.sum() >= INTERIOR_MIN_UNITS:
-        e_in = float(pooled_median(expected[inner], error_model.dimension))
-        m_in = float(np.median(np.asarray(errors)[inner]))
-        factor = m_in / e_in if e_in > 0 and m_in > 0 else ratio
-    else:
-        factor = ratio
-    return ModelCheck(True, units, exp_med, act_med, ratio, not notes, "; ".join(notes),
-                      factor, int(inner.sum()))
-
-
-def interior(points: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """(J,) whether each point is not a vertex of the points' convex hull (all False when the
-    hull is flat or cannot be computed)."""
-    x = np.asarray(points, dtype=np.float64)
-    out = np.zeros(len(x), dtype=bool)
-    if len(x) <= x.shape[1] + 1:
-        return out
-    try:
-        hull = scipy.spatial.ConvexHull(x)
-    except (scipy.spatial.QhullError, ValueError):
-        return out
-    out[:] = True
-    out[hull.vertices] = False
-    return out
+    return ModelCheck(True, units, exp_med, act_med, ratio, not notes, "; ".join(notes))
 
 
 def _uncalibrated(error_model: ExpectedErrorModel) -> ExpectedErrorModel:

@@ -142,12 +142,11 @@ def decisive_candidate(model: RbcModel, candidates: ArrayLike) -> Optional[tuple
 def calibrated(model: RbcModel, error_model: Optional[ExpectedErrorModel] = None
                ) -> tuple[ExpectedErrorModel, ModelCheck]:
     """The planning error model (default ``error_model_from(model)``) with its calibration set
-    to the ratio of the decision's cross-validated held-out errors to its expected ones, over
-    the interior held-out fiducials (:func:`.model_check.check_model`, ``calibration``; 1 when
-    the check is not available), and the check."""
+    to the ratio of the decision's cross-validated held-out errors to its expected ones
+    (:func:`.model_check.check_model`; 1 when the check is not available), and the check."""
     em = error_model_from(model) if error_model is None else error_model
     check = check_model(model, em)
-    return dataclasses.replace(em, calibration=check.calibration), check
+    return dataclasses.replace(em, calibration=check.ratio), check
 
 
 def _to_trust(check: ModelCheck, grouped: bool) -> str:

@@ -59,7 +59,7 @@ def test_plan_prints_and_writes_the_ranking_of_the_library(ra):
     assert rep["min_gain_fraction"] == 0.0 and rep["min_gain_length"] == 0.0
     assert rep["within"] == 0.1 and rep["enough_rule"] == p.enough_rule
     assert rep["model_check"] == p.model_check.to_dict() and rep["model_check"]["units"] == 15
-    assert rep["error_model"]["calibration"] == pytest.approx(p.model_check.calibration, rel=1e-12)
+    assert rep["error_model"]["calibration"] == pytest.approx(p.model_check.ratio, rel=1e-12)
     np.testing.assert_allclose([c["gain"] for c in rep["candidates"]], p.gains, rtol=1e-9)
     assert [c["id"] for c in rep["candidates"]] == list(cand_ids)
     assert sorted(rep["candidates"], key=lambda c: c["rank"])[0]["index"] == p.sequence[0]

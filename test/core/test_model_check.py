@@ -13,8 +13,7 @@ from rbc_registration.core.decision.crossval import fold_groups
 from rbc_registration.core.expected_error import (ExpectedErrorModel, expected_squared_errors,
                                                   pooled_median)
 from rbc_registration.core.decision.groups import group_labels
-from rbc_registration.core.model_check import (INTERIOR_MIN_UNITS, TRUST_FACTOR, TRUST_MIN_UNITS,
-                                               ModelCheck, interior,
+from rbc_registration.core.model_check import (TRUST_FACTOR, TRUST_MIN_UNITS, ModelCheck,
                                                check_model, expected_held_out, units_to_trust)
 from rbc_registration.core.model_planner import calibrated, error_model_from
 from rbc_registration.core.synthetic.cells import make_cell
@@ -72,7 +71,7 @@ def test_the_check_compares_the_cross_validated_median_with_the_expected_one(for
     assert again.ratio == pytest.approx(check.ratio, rel=1e-12)
     # calibrated(): the planning model times the ratio
     cal, same = calibrated(m)
-    assert same == check and cal.calibration == check.calibration
+    assert same == check and cal.calibration == check.ratio
     assert (cal.signal_std, cal.length_scale) == (em.signal_std, em.length_scale)
 
 
@@ -124,28 +123,3 @@ def test_pooled_median_of_the_expected_held_out_errors_is_the_expected_median(fo
     assert sorted(np.concatenate(folds)) == list(range(40))
     e = expected_held_out(m.working, m.counts, folds, em)
     assert check.expected_median == pytest.approx(float(pooled_median(e, 2)), rel=1e-12)
-
-
-def test_the_calibration_is_the_ratio_over_the_interior_held_out_fiducials(forty):
-    """Held-out hull vertices are extrapolations; the factor on the plan's errors is taken over
-    the held-out fiducials the others surround, as they surround a target."""
-    import scipy.spatial
-
-    m = forty
-    em = error_model_from(m)
-    check = check_model(m, em)
-    inner = np.ones(40, dtype=bool)
-    inner[scipy.spatial.ConvexHull(m.working).vertices] = False
-    assert check.interior == inner.sum() >= INTERIOR_MIN_UNITS
-    cv = m.decision.cross_validation
-    folds = fold_groups(m.working, cv.scheme, m.destination, group_labels(m.groups, 40))
-    e = expected_held_out(m.working, m.counts, folds, em)
-    want = np.median(cv.errors["kriging"][inner]) / pooled_median(e[inner], 2)
-    assert check.calibration == pytest.approx(float(want), rel=1e-12)
-    assert check.calibration != check.ratio
-    assert check.to_dict()["calibration"] == pytest.approx(check.calibration)
-    # a hull of few points: too few interior fiducials, the factor is the ratio of all
-    few = _model(9)
-    small = check_model(few, error_model_from(few))
-    assert small.interior < INTERIOR_MIN_UNITS and small.calibration == small.ratio
-    np.testing.assert_array_equal(interior(np.eye(3)[:, :2]), [False, False, False])

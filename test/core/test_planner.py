@@ -474,10 +474,10 @@ def test_plan_from_a_model(ra_model):
     assert p.expected_after[-1] < p.expected_now
     # the plan's expected error is the model's, calibrated by the held-out errors
     cal, check = calibrated(m)
-    assert p.model_check == check and cal.calibration == check.calibration
+    assert p.model_check == check and cal.calibration == check.ratio
     assert expected_target_error(m, tw, error_model=cal) == pytest.approx(p.expected_now,
                                                                           rel=1e-12)
-    assert expected_target_error(m, tw, error_model=em) * check.calibration == pytest.approx(
+    assert expected_target_error(m, tw, error_model=em) * check.ratio == pytest.approx(
         p.expected_now, rel=1e-12)
     assert 0.5 * p.expected_now < expected_target_error(m) < 2 * p.expected_now
     paper = build_model(m.working, m.destination, ModelConfig(dimension=2, sigma=0.11))

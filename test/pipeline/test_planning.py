@@ -38,9 +38,9 @@ def test_planning_state_of_a_model_is_the_core_planner():
     p = planning_state(state)
     assert p.state is state and p.error == "" and p.error_model is not None
     # the served error, calibrated by the cross-validated held-out errors
-    assert state.model.decision.apply and p.error_model.calibration == p.check.calibration != 1.0
+    assert state.model.decision.apply and p.error_model.calibration == p.check.ratio != 1.0
     assert p.expected_target_error == pytest.approx(
-        p.check.calibration * expected_target_error(state.model), rel=1e-12)
+        p.check.ratio * expected_target_error(state.model), rel=1e-12)
     em = error_model_from(state.model)
     assert (p.error_model.signal_std, p.error_model.length_scale) == (em.signal_std,
                                                                       em.length_scale)
@@ -86,7 +86,7 @@ def test_suggest_is_the_core_plan_once_the_error_model_is_ready():
     held = suggest(p, state, strict, cand, None, 1)
     assert not held.enough and not p.check.trustworthy and p.check.units == 12
     assert "measure at least 3 more fiducials" in held.reason
-    assert p.error_model.calibration == p.check.calibration
+    assert p.error_model.calibration == p.check.ratio
     trusted = dataclasses.replace(p, check=p.check._replace(trustworthy=True, note=""))
     assert suggest(trusted, state, strict, cand, None, 1).enough
 

@@ -117,7 +117,7 @@ class TestSuggestNext(NodeTestBase):
         # the served error calibrated by the cross-validated held-out errors (planning thread)
         assert status.expected_target_error == pytest.approx(
             planning_state(state).expected_target_error, rel=1e-9)
-        ratio = planning_state(state).check.calibration
+        ratio = planning_state(state).check.ratio
         assert status.expected_target_error == pytest.approx(
             ratio * expected_target_error(state.model, config=NODE), rel=1e-9)
         assert 0 < status.expected_target_error < 1e-3    # metres: a sub-millimetre error
