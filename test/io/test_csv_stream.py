@@ -171,7 +171,7 @@ def test_a_file_that_is_no_text_is_one_line(tmp_path):
         read_fiducial_sums(tmp_path / "missing.csv")
 
 
-def _in_memory(path, dim=None, outlier_distance=None, reference_sessions=None):
+def _in_memory(path, dim=None, outlier_distance=None, reference_sessions=None, progress=False):
     """register's reading before the stream: read_fiducials, the repeats' statistics."""
     t = read_fiducials(path, dim, outlier_distance, reference_sessions)
     return FiducialSums(t.ids, t.working, t.destination,
