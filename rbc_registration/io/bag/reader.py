@@ -207,7 +207,9 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
     :param topics: the topic names to read.
     :param required: topics that must be in the bag (e.g. the ones named on the command line).
     :param progress: show progress on stderr.
-    :return: :class:`BagContents`.
+    :return: :class:`BagContents`; its ``inputs`` are an :class:`~.spool.InputSpool` (read
+        message by message into a temporary file: memory flat in the messages), the targets
+        a tuple.
     :raises BagError: when the bag cannot be read, a required topic is missing, a topic has the
         wrong type, the bag holds none of the input topics, or only one of the point topics.
     """

@@ -117,6 +117,7 @@ class BagContents(NamedTuple):
     without messages)."""
 
     path: Path
+    #: In bag order; :func:`read_bag` gives an on-disk ``InputSpool`` that reads as this tuple.
     inputs: tuple[Union[PairMessage, PointMessage], ...]
     targets: tuple[PairMessage, ...]
     counts: dict[str, int]
