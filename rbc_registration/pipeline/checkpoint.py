@@ -120,6 +120,7 @@ def export_state(acc: FiducialAccumulator) -> dict[str, Any]:
             "bumps": [[s, b.start, b.motion.rotation.tolist(), b.motion.translation.tolist(),
                        b.motion.fre_rms, b.p_value, b.n_fiducials] for s, b in sums.bumps],
             "detector": [[q, f, m.tolist(), p.tolist()] for q, f, m, p in detector._recent],
+            "detector_tested": detector._tested,
         },
     }
 
@@ -172,6 +173,7 @@ def _import(acc: FiducialAccumulator, state: dict[str, Any]) -> None:
         sums.bumps.append((str(name), Bump(int(start), motion, float(p_value), int(n_fid))))
     sums._detector._recent = [(int(q), str(f), np.array(_floats(m, d)), np.array(_floats(p, d)))
                               for q, f, m, p in s["detector"]]
+    sums._detector._tested = int(s["detector_tested"])
     if acc.n_measurements < sum(r.n for r in acc._fiducials.values()):
         raise ValueError("fewer measurements than the fiducials hold")
 

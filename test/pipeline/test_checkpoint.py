@@ -83,8 +83,8 @@ def test_the_checkpoint_knows_every_field_of_the_accumulator():
         "sessions"}
     assert set(vars(acc.sessions)) == {"dimension", "tail", "_cells", "_starts", "current",
                                        "_tail", "_detector", "_sequence", "bumps"}
-    assert set(vars(acc.sessions._detector)) == {"dimension", "window", "significance",
-                                                 "_recent", "_critical"}
+    assert set(vars(acc.sessions._detector)) == {"dimension", "window", "every", "significance",
+                                                 "_recent", "_critical", "_tested"}
 
 
 @pytest.mark.parametrize("split", [0, 1, 7, 20, -4, -1])

@@ -24,7 +24,10 @@ The live node finds a move nobody declared with :class:`BumpDetector`: re-measur
 new points are explained by one rigid motion of their earlier means, by the same F test at
 :data:`LIVE_SIGNIFICANCE`, open a new session at the first of them. Every size k of the newest
 re-measurements is tested at once, from running sums (:func:`newest_motion_tests`): one batched
-d x d SVD per re-measurement, not a rigid fit per k.
+d x d SVD per test, not a rigid fit per k; and the test runs at most once per
+``window - d - 1`` measurements, which the window of ``window`` re-measurements still spans: a
+move is found a few measurements later at most, and starts where it began (the change point
+over the window).
 """
 
 from __future__ import annotations
@@ -336,13 +339,13 @@ class BumpDetector:
 
     Call :meth:`observe` with every accepted measurement of the current session, in order, with
     the mean of that fiducial's earlier measurements in the current session (``None`` for its
-    first). It keeps the latest re-measurement of each fiducial, at most ``window`` of them
-    (memory bounded). When the newest k of them (k from d + 1 up) are explained by one rigid
-    motion of their earlier means at :data:`LIVE_SIGNIFICANCE` (divided by the number of k
-    tried), a :class:`Bump` is returned; the new session starts at the change point among the
-    kept re-measurements (at the latest the first of those k): the one before which no motion
-    and from which on the motion leave the least squared misfit. Then the detector starts over:
-    call :meth:`reset` when a session opens for any other reason.
+    first). It keeps the latest re-measurement of each fiducial, at most ``2 window`` of them
+    (memory bounded). When the newest k of them (k from d + 1 up to ``window``) are explained by
+    one rigid motion of their earlier means at :data:`LIVE_SIGNIFICANCE` (divided by the number
+    of k tried), a :class:`Bump` is returned; the new session starts at the change point among
+    the kept re-measurements (at the latest the first of those k): the one before which no
+    motion and from which on the motion leave the least squared misfit. Then the detector starts
+    over: call :meth:`reset` when a session opens for any other reason.
 
     :param dimension: 2 or 3.
     :param window: most re-measurements kept (default 4 (d + 1)).
@@ -354,13 +357,17 @@ class BumpDetector:
             raise ValueError(f"dimension must be 2 or 3, got {dimension!r}")
         self.dimension = dimension
         self.window = window or 4 * (dimension + 1)
+        #: The test runs once per this many measurements (module docstring).
+        self.every = max(1, self.window - dimension - 1)
         self.significance = significance
         self._recent: list[tuple[int, str, NDArray[np.float64], NDArray[np.float64]]] = []
         self._critical: dict[int, NDArray[np.float64]] = {}
+        self._tested = -1         # the sequence number of the last test (-1: none since reset)
 
     def reset(self) -> None:
         """Forget the re-measurements (a new session opened)."""
         self._recent.clear()
+        self._tested = -1
 
     def _critical_f(self, n: int) -> NDArray[np.float64]:
         """The F test's critical values for k = d + 1 .. n newest, at the level per k."""
@@ -381,19 +388,25 @@ class BumpDetector:
         m = np.asarray(earlier_mean, dtype=np.float64)[: self.dimension]
         self._recent = [r for r in self._recent if r[1] != fiducial_id]
         self._recent.append((sequence, fiducial_id, m, p))
-        del self._recent[: max(0, len(self._recent) - self.window)]
+        del self._recent[: max(0, len(self._recent) - 2 * self.window)]
         d = self.dimension
-        if len(self._recent) < d + 1:
-            return None
-        before = np.array([r[2] for r in self._recent])
-        after = np.array([r[3] for r in self._recent])
-        f, spread = newest_motion_tests(before, after)
-        hits = np.flatnonzero(spread & (f > self._critical_f(len(self._recent))))
+        recently = self._tested >= 0 and sequence - self._tested < self.every
+        tested = self._recent[-self.window:]
+        if len(tested) < d + 1 or recently:
+            return None     # tested at most once per `every` measurements (the window spans it)
+        self._tested = sequence
+        n = len(tested)
+        f, spread = newest_motion_tests(np.array([r[2] for r in tested]),
+                                        np.array([r[3] for r in tested]))
+        hits = np.flatnonzero(spread & (f > self._critical_f(n)))
         if len(hits):
             k = int(hits[0]) + d + 1
+            before = np.array([r[2] for r in self._recent])
+            after = np.array([r[3] for r in self._recent])
             reg, p_value = motion_test(before[-k:], after[-k:])
             # the change point among all kept re-measurements (at the latest the first of the
-            # newest k): no motion before it, the motion from it on, least squares
+            # newest k; the test may run some measurements after the move began): no motion
+            # before it, the motion from it on, least squares
             still = np.sum((after - before) ** 2, axis=1)
             moved = np.sum((after - reg.apply(before)) ** 2, axis=1)
             cost = (np.concatenate([[0.0], np.cumsum(still)])
