@@ -8,9 +8,9 @@ hyper-parameter fit is timed separately: a node or CLI has the model already). T
 :func:`plan` with targets (K = 80) or the work volume (about 400 grid points), count 1 and 10,
 isotropic and anisotropic noise, candidates one by one or in groups of 3 (a robot pose, a
 rank-3 update each); and the whole :func:`plan_from_model` including the error model and its
-check against the cross-validated errors (:mod:`rbc_registration.core.model_check`). The cases
-are run in turn, round after round, so machine load hits all alike; min and
-median over the rounds. 1 BLAS thread (as the node runs). Prints Markdown.
+check against the cross-validated errors (:mod:`rbc_registration.core.planning.model_check`).
+The cases are run in turn, round after round, so machine load hits all alike; min and median
+over the rounds. 1 BLAS thread (as the node runs). Prints Markdown.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from rbc_registration.core.expected_error import ExpectedErrorModel  # noqa: E402
+from rbc_registration.core.planning.expected_error import ExpectedErrorModel  # noqa: E402
 from rbc_registration.core.model import ModelConfig, build_model  # noqa: E402
-from rbc_registration.core.model_planner import error_model_from, plan_from_model  # noqa: E402
-from rbc_registration.core.planner import plan  # noqa: E402
+from rbc_registration.core.planning.model_planner import error_model_from, plan_from_model  # noqa: E402
+from rbc_registration.core.planning.planner import plan  # noqa: E402
 
 
 def cell(dim: int, j: int, c: int, k: int, seed: int = 0):

@@ -1,16 +1,16 @@
 """Which correction the ``cv`` decision picks on few fiducials, and what it costs at the targets.
 
 Per cell (``RA``, ``A`` of :mod:`rbc_registration.core.synthetic.cells`) and seed, single
-measurements
-(the first of every fiducial and target; sigma given: the cell's; kriging configured, as in
-``plan_cells.py``), random subsets of the fiducials (one random order per seed, its first n for
-each n in ``--counts``) go through ``build_model``. For each model the median target TRE against
-the truth is taken for every candidate (uncorrected, paper, kriging), and the choice is made by
+measurements (the first of every fiducial and target; sigma given: the cell's; kriging
+configured, as in ``plan_cells.py``), random subsets of the fiducials (one random order per
+seed, its first n for each n in ``--counts``) go through ``build_model``. For each model the
+median target TRE against the truth is taken for every candidate (uncorrected, paper,
+kriging), and the choice is made by
 
-- ``preference`` (the shipped rule, :func:`~rbc_registration.core.decision.choice.decide`): among
-the
-  corrections that beat the uncorrected registration, the first in ``decision.PREFERENCE`` unless
-  another's held-out errors are significantly smaller than its own;
+- ``preference`` (the shipped rule, :func:`~rbc_registration.core.decision.choice.decide`):
+  among the corrections that beat the uncorrected registration, the first in
+  ``decision.PREFERENCE`` unless another's held-out errors are significantly smaller than its
+  own;
 - ``smallest median``: among the same corrections, the smallest cross-validated median (the rule
   before PREFERENCE), computed here from the same decision record.
 

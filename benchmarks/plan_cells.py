@@ -23,7 +23,8 @@ the default rules (``PlanConfig()``: within 10 % of every hole measured) until i
 ``enough``, measuring each batch only up to ``enough_after`` when the plan gives it; the TRE there
 is set against the TRE with every fiducial and the count at which the farthest-point order first
 reaches it. At :data:`CHECK_COUNTS` the plan's (calibrated) expected median target error is set
-against the actual one, with the error model check (:mod:`rbc_registration.core.model_check`).
+against the actual one, with the error model check
+(:mod:`rbc_registration.core.planning.model_check`).
 """
 
 from __future__ import annotations
@@ -42,8 +43,8 @@ import scipy.stats  # noqa: E402
 
 from rbc_registration.core.answers import TargetEvaluation  # noqa: E402
 from rbc_registration.core.model import ModelConfig, RbcModel, build_model  # noqa: E402
-from rbc_registration.core.model_planner import plan_from_model  # noqa: E402
-from rbc_registration.core.planner import PlanConfig  # noqa: E402
+from rbc_registration.core.planning.model_planner import plan_from_model  # noqa: E402
+from rbc_registration.core.planning.planner import PlanConfig  # noqa: E402
 from rbc_registration.core.synthetic.cells import make_cell  # noqa: E402
 
 ORDERS = ("planner", "random", "farthest")

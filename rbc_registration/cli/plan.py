@@ -2,7 +2,7 @@
 
 Builds the model of FIDUCIALS.csv as ``register`` does (same model options), then ranks the
 candidate locations of CANDIDATES.csv by the expected reduction of the median target error
-(:func:`rbc_registration.core.model_planner.plan_from_model`; docs/METHOD.md, "Planning the
+(:func:`rbc_registration.core.planning.model_planner.plan_from_model`; docs/METHOD.md, "Planning the
 measurements"), over the targets of TARGETS.csv or, without them, over the work volume.
 """
 
@@ -76,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from ..core.model import build_model
-    from ..core.model_planner import calibrated, plan_from_model
-    from ..core.planner import PlanConfig, overlap_notes, typical_repeats
+    from ..core.planning.model_planner import calibrated, plan_from_model
+    from ..core.planning.planner import PlanConfig, overlap_notes, typical_repeats
     from ..io.csv_io import MAX_CANDIDATE_ROWS, read_targets, target_sessions
     from ..io.csv_stream import read_fiducial_sums
     from ..io.plan_report import format_plan, plan_report

@@ -57,6 +57,9 @@ MOVED = {
     "accumulator": "measurements.accumulator", "records": "measurements.records",
     "measurement_checks": "measurements.checks", "pairing": "measurements.pairing",
     "sessions": "measurements.sessions", "session_sums": "measurements.session_sums",
+    "planner": "planning.planner", "model_planner": "planning.model_planner",
+    "expected_error": "planning.expected_error", "rigid_tre": "planning.rigid_tre",
+    "stopping": "planning.stopping", "model_check": "planning.model_check",
 }
 
 

@@ -33,7 +33,7 @@ from .interpolation.kriging import KrigingHyperparameters, KrigingInterpolator, 
 from .decision.noise import RepeatStats, assess, axis_sigma, resolve_repeat_stats
 from .rigid.registration import Registration, rigid_fit
 from .rigid.restoration import RestorationResult, restore_rigid_body
-from .rigid_tre import FitGeometry
+from .planning.rigid_tre import FitGeometry
 from .rigid.scale import frame_mismatch
 from .validation import as_point_pairs, as_points, check_subset
 

@@ -27,7 +27,7 @@ from .interpolation.paper import PaperInterpolator
 from .interpolation.kriging import KrigingHyperparameters, KrigingInterpolator
 from .model import Interpolator, RbcModel
 from .rigid.registration import Registration
-from .rigid_tre import FitGeometry
+from .planning.rigid_tre import FitGeometry
 from .validation import as_point_pairs, as_points
 
 __all__ = ["ModelParts", "SavedDecision", "SavedModel", "needed_interpolations", "parts_of",

@@ -2,15 +2,15 @@
 documented in docs/CLI.md, "`plan`") and its text.
 
 Lengths are in the unit of the files (the label ``unit``); the plan is
-:class:`~rbc_registration.core.planner.MeasurementPlan`.
+:class:`~rbc_registration.core.planning.planner.MeasurementPlan`.
 """
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-from ..core.expected_error import ExpectedErrorModel
-from ..core.planner import MeasurementPlan, PlanConfig
+from ..core.planning.expected_error import ExpectedErrorModel
+from ..core.planning.planner import MeasurementPlan, PlanConfig
 from ..pipeline.jsonable import json_number as _num
 from .escape import terminal
 

@@ -19,11 +19,11 @@ from typing import Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.expected_error import ExpectedErrorModel
-from ..core.model_check import ModelCheck
-from ..core.model_planner import calibrated, expected_target_error, plan_from_model, \
+from ..core.planning.expected_error import ExpectedErrorModel
+from ..core.planning.model_check import ModelCheck
+from ..core.planning.model_planner import calibrated, expected_target_error, plan_from_model, \
     served_error_model
-from ..core.planner import MeasurementPlan, PlanConfig
+from ..core.planning.planner import MeasurementPlan, PlanConfig
 from ..core.rigid.scale import point_sets_unit_mismatch
 from ..core.validation import as_points
 from .settings import Settings
@@ -32,7 +32,7 @@ from .state import EMPTY_STATE, ModelState
 
 #: Measurements of a target the node's plans and expected errors assume: ``~/correct_target``
 #: answers one measured point (a new fiducial is assumed streamed as the fiducials so far
-#: were: the median of their pair counts, :func:`~rbc_registration.core.planner.
+#: were: the median of their pair counts, :func:`~rbc_registration.core.planning.planner.
 #: measurement_repeats`).
 TARGET_REPEATS = 1
 
@@ -42,16 +42,17 @@ class PlanningState:
     """What the planner knows of one model state.
 
     :ivar state: the model state this belongs to (compared by identity with the served one).
-    :ivar error_model: the model's planning :class:`~rbc_registration.core.expected_error.
+    :ivar error_model: the model's planning :class:`~rbc_registration.core.planning.expected_error.
         ExpectedErrorModel` (the corrected registration, what more fiducials improve),
         calibrated against the decision's cross-validated held-out errors
-        (:func:`~rbc_registration.core.model_planner.calibrated`); None without a model or
+        (:func:`~rbc_registration.core.planning.model_planner.calibrated`); None without a model or
         when it could not be made.
     :ivar expected_target_error: expected median TRE over the work volume of the fiducials of
         the registration the model serves (its decision; unit of the model); NaN when unknown.
     :ivar error: why there is no error model ("" when there is).
     :ivar check: the error model against the cross-validated errors
-        (:class:`~rbc_registration.core.model_check.ModelCheck`; the plans say ``enough`` only
+        (:class:`~rbc_registration.core.planning.model_check.ModelCheck`; the plans say ``enough``
+        only
         while it trusts the error model); None without an error model.
     """
 

@@ -7,8 +7,8 @@ import pytest
 from test_cli import run as run_cli
 
 from rbc_registration.core import ModelConfig, build_model
-from rbc_registration.core.model_planner import plan_from_model
-from rbc_registration.core.planner import PlanConfig
+from rbc_registration.core.planning.model_planner import plan_from_model
+from rbc_registration.core.planning.planner import PlanConfig
 from rbc_registration.core.synthetic.cells import make_cell
 from rbc_registration.io.csv_io import write_fiducials, write_targets
 

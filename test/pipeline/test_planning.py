@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from rbc_registration.core.measurements.accumulator import FiducialAccumulator
-from rbc_registration.core.model_planner import (error_model_from, expected_target_error,
+from rbc_registration.core.planning.model_planner import (error_model_from, expected_target_error,
                                                  plan_from_model)
-from rbc_registration.core.planner import PlanConfig
+from rbc_registration.core.planning.planner import PlanConfig
 from rbc_registration.pipeline.planning import (NO_PLANNING, expected_error_now, plan_config,
                                                 planning_state, request_error, suggest)
 from rbc_registration.pipeline.settings import Settings

@@ -1,4 +1,5 @@
-"""The state directory (rbc_registration.pipeline.state_dir): its files, and the default state_dir per node: one directory per namespace and
+"""The state directory (rbc_registration.pipeline.state_dir): its files, and the default state_dir
+per node: one directory per namespace and
 name, never shared, and launch_ros's namespace rules."""
 
 import itertools

@@ -12,8 +12,8 @@ pytest.importorskip("rbc_registration_interfaces.msg")
 
 from geometry_msgs.msg import Point  # noqa: E402
 
-from rbc_registration.core.model_planner import expected_target_error, plan_from_model  # noqa: E402,E501
-from rbc_registration.core.planner import PlanConfig  # noqa: E402
+from rbc_registration.core.planning.model_planner import expected_target_error, plan_from_model  # noqa: E402,E501
+from rbc_registration.core.planning.planner import PlanConfig  # noqa: E402
 from rbc_registration.pipeline.planning import TARGET_REPEATS, planning_state  # noqa: E402
 
 #: The node plans for targets measured once (pipeline/planning.py).

@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .validation import as_points
+from ..validation import as_points
 
 
 def _rotation_block(c: NDArray[np.float64]) -> NDArray[np.float64]:

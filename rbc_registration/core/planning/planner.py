@@ -45,10 +45,10 @@ from scipy.spatial import cKDTree
 from .expected_error import (BiasPosterior, ExpectedErrorModel, RigidFitError,
                              expected_squared_errors, fiducial_covariance, inverse_repeats,
                              pooled_median, target_noise)
-from .interpolation.paper import HullTest
+from ..interpolation.paper import HullTest
 from .stopping import verdict
-from .repeats import TWIN_FRACTION, same_place_limit, typical_spacing
-from .validation import as_points, check_spread, rounding
+from ..repeats import TWIN_FRACTION, same_place_limit, typical_spacing
+from ..validation import as_points, check_spread, rounding
 
 #: ``expected_with_all`` conditions on J + C points at once (one Cholesky factorisation,
 #: O((J + C)^3)); beyond this many it is not computed.

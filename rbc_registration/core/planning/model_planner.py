@@ -26,15 +26,15 @@ from typing import NamedTuple, Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .constants import DecisionMode
-from .decision.evaluation import leave_one_out
+from ..constants import DecisionMode
+from ..decision.evaluation import leave_one_out
 from .expected_error import ExpectedErrorModel, expected_squared_errors, pooled_median
-from .interpolation.kriging import KrigingInterpolator
-from .model import RbcModel
+from ..interpolation.kriging import KrigingInterpolator
+from ..model import RbcModel
 from .model_check import ModelCheck, check_model, units_to_trust
 from .planner import (DEFAULT_PLAN_CONFIG, MeasurementPlan, PlanConfig, measurement_repeats,
                       plan, work_volume)
-from .validation import as_points
+from ..validation import as_points
 
 
 class ExpectedErrorCheck(NamedTuple):

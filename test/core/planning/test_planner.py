@@ -11,17 +11,18 @@ from scipy.spatial.transform import Rotation
 
 from rbc_registration.core import ModelConfig, build_model
 from rbc_registration.core.constants import DecisionMode
-from rbc_registration.core.expected_error import (BiasPosterior, ExpectedErrorModel,
+from rbc_registration.core.planning.expected_error import (BiasPosterior, ExpectedErrorModel,
                                                   expected_squared_errors, pooled_median)
 from rbc_registration.core.interpolation.kriging import KrigingHyperparameters, KrigingInterpolator
-from rbc_registration.core.model_planner import (calibrated, check_expected_error,
+from rbc_registration.core.planning.model_planner import (calibrated, check_expected_error,
                                                  decisive_candidate,
                                                  error_model_from, expected_target_error,
                                                  plan_from_model)
-from rbc_registration.core.planner import (PlanConfig, measurement_repeats, overlap_notes, plan,
+from rbc_registration.core.planning.planner import (PlanConfig, measurement_repeats, overlap_notes,
+                                                    plan,
                                            unresolved_bias, work_volume)
 from rbc_registration.core.rigid.registration import rigid_fit
-from rbc_registration.core.rigid_tre import rigid_tre_covariance
+from rbc_registration.core.planning.rigid_tre import rigid_tre_covariance
 from rbc_registration.core.synthetic.cells import make_cell
 
 
@@ -237,7 +238,7 @@ def test_a_cell_started_from_a_few_neighbouring_fiducials_is_planned_over_its_pl
 
 def test_a_plan_too_large_for_memory_is_refused(monkeypatch):
     """12,000 candidates x 12,000 targets needed ~14 GB and ended in a MemoryError traceback."""
-    import rbc_registration.core.planner as planner
+    import rbc_registration.core.planning.planner as planner
     monkeypatch.setattr(planner, "MAX_CANDIDATE_POINTS", 50)
     rng = np.random.default_rng(0)
     x = rng.uniform(0, 1, (8, 2))
@@ -555,7 +556,7 @@ def test_no_enough_while_the_decision_is_unsure_whether_to_correct(ra_model):
 def test_a_decisive_candidate_within_its_noise_is_not_forced_first(ra_model, monkeypatch):
     """a "decisive" candidate at 0.00065 sigma displaced the best-gain one; below
     MIN_DECISIVE_Z the plan is greedy from its first suggestion, and still held back."""
-    from rbc_registration.core import model_planner
+    from rbc_registration.core.planning import model_planner
 
     m, rest, _ = ra_model
     base = plan_from_model(m, rest, count=2)
@@ -625,7 +626,7 @@ def test_config_validation(make, message):
 def test_a_far_point_does_not_make_the_fit_look_degenerate(d):
     """G with a point 1e9 units out has rows of very different size: its plain condition
     number said "cannot fix a rigid registration"; conditioned on its diagonal it is fine."""
-    from rbc_registration.core.rigid_tre import RigidFitError
+    from rbc_registration.core.planning.rigid_tre import RigidFitError
     rng = np.random.default_rng(d)
     x = rng.uniform(0, 1, (12, d))
     far = np.zeros((1, d))

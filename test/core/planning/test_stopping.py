@@ -1,9 +1,9 @@
-"""The planner's stopping rules and their one-sentence verdict (core/stopping.py)."""
+"""The planner's stopping rules and their one-sentence verdict (core/planning/stopping.py)."""
 
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from rbc_registration.core.stopping import ENOUGH_RULES, rules_holding, verdict
+from rbc_registration.core.planning.stopping import ENOUGH_RULES, rules_holding, verdict
 
 
 def test_the_within_rule_is_now_within_f_of_the_error_with_every_candidate():

@@ -35,12 +35,12 @@ import scipy.linalg
 from numpy.typing import NDArray
 from scipy.spatial.distance import cdist
 
-from .interpolation.blocked_linalg import inverse_from_cholesky
-from .decision.crossval import fold_groups
+from ..interpolation.blocked_linalg import inverse_from_cholesky
+from ..decision.crossval import fold_groups
 from .expected_error import JITTER, ExpectedErrorModel, fiducial_covariance, pooled_median
-from .interpolation.gp_fit import matern52
-from .decision.groups import group_labels
-from .model import RbcModel
+from ..interpolation.gp_fit import matern52
+from ..decision.groups import group_labels
+from ..model import RbcModel
 from .rigid_tre import RigidFrame, _inverse_normal
 
 #: The expected and the cross-validated held-out medians agree within this factor (either way)

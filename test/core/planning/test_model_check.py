@@ -1,4 +1,4 @@
-"""The error model against the cross-validated held-out errors (core/model_check.py)."""
+"""The error model against the cross-validated held-out errors (core/planning/model_check.py)."""
 
 import dataclasses
 import json
@@ -10,12 +10,13 @@ import pytest
 
 from rbc_registration.core import ModelConfig, build_model
 from rbc_registration.core.decision.crossval import fold_groups
-from rbc_registration.core.expected_error import (ExpectedErrorModel, expected_squared_errors,
+from rbc_registration.core.planning.expected_error import (ExpectedErrorModel,
+                                                           expected_squared_errors,
                                                   pooled_median)
 from rbc_registration.core.decision.groups import group_labels
-from rbc_registration.core.model_check import (TRUST_FACTOR, TRUST_MIN_UNITS, ModelCheck,
+from rbc_registration.core.planning.model_check import (TRUST_FACTOR, TRUST_MIN_UNITS, ModelCheck,
                                                check_model, expected_held_out, units_to_trust)
-from rbc_registration.core.model_planner import calibrated, error_model_from
+from rbc_registration.core.planning.model_planner import calibrated, error_model_from
 from rbc_registration.core.synthetic.cells import make_cell
 
 

@@ -41,10 +41,11 @@ import scipy.special
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.distance import cdist
 
-from .constants import DIMENSIONS
-from .interpolation.gp_fit import matern52 as _matern52  # overwrites its distances: pass fresh ones
+from ..constants import DIMENSIONS
+# matern52 overwrites its distances: pass fresh ones
+from ..interpolation.gp_fit import matern52 as _matern52
 from .rigid_tre import RigidFitError
-from .validation import as_points
+from ..validation import as_points
 
 #: Relative jitter on the GP diagonal, as :mod:`.kriging` uses.
 JITTER = 1e-10
