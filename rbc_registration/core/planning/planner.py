@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple, Optional, Sequence
+from typing import Any, Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -379,6 +379,94 @@ def _padded(members: Sequence[Sequence[int]]) -> NDArray[np.intp]:
     return out
 
 
+
+def _error_points(x: NDArray[np.float64], c: NDArray[np.float64], targets: Optional[ArrayLike],
+                  config: PlanConfig) -> NDArray[np.float64]:
+    """Where :func:`plan` takes the error: the targets (checked), or the work volume of the
+    fiducials and candidates; refused when candidates x points is more than a plan holds."""
+    d = x.shape[1]
+    t = as_points(targets, "targets", d, 1) if targets is not None else None
+    check_near(c, x, "candidate", t)
+    check_candidates_reach(c, x)
+    pts = t if t is not None else work_volume(np.vstack([x, c]), config.work_volume_points)
+    if t is not None:
+        check_near(pts, x, "target", c, itself=False)
+    if len(c) * len(pts) > MAX_CANDIDATE_POINTS:
+        kind = "targets" if t is not None else "work-volume points"
+        raise ValueError(f"{len(c)} candidates x {len(pts)} {kind} = {len(c) * len(pts):,} is "
+                         f"more than one plan holds ({MAX_CANDIDATE_POINTS:,}): give fewer "
+                         f"candidates or targets")
+    return pts
+
+
+def _with_all(x: NDArray[np.float64], c: NDArray[np.float64], pts: NDArray[np.float64],
+              error_model: ExpectedErrorModel, inv_n: NDArray[np.float64], n_cand: int,
+              n_target: int) -> Optional[float]:
+    """The expected median error with every candidate measured (None above
+    :data:`ALL_CANDIDATES_MAX` fiducials and candidates)."""
+    if len(x) + len(c) > ALL_CANDIDATES_MAX:
+        return None
+    n_all = np.concatenate([1.0 / inv_n, np.full(len(c), float(n_cand))])
+    return float(pooled_median(expected_squared_errors(
+        np.vstack([x, c]), pts, error_model, n_all, n_target), x.shape[1]))
+
+
+def _after(members: Sequence[tuple[int, ...]], rigid: RigidFitError,
+           bias: Optional[BiasPosterior], const: float,
+           cal2: float) -> Callable[[NDArray[np.intp]], NDArray[np.float64]]:
+    """The expected squared errors at the points after measuring each of the ``active`` units
+    (one candidate each: rank-one updates; groups: rank-m), calibrated by ``cal2``."""
+    singles = all(len(m) == 1 for m in members)
+    padded = _padded(members)
+
+    def after(active: NDArray[np.intp]) -> NDArray[np.float64]:
+        if singles:
+            idx = padded[active, 0]
+            e = rigid.after_each(idx) + const
+            return cal2 * (e + bias.after_each(idx) if bias is not None else e)
+        e = rigid.after_units(padded[active]) + const
+        return cal2 * (e + bias.after_units(padded[active]) if bias is not None else e)
+
+    return after
+
+
+def _greedy(count: int, medians: NDArray[np.float64],
+            after: Callable[[NDArray[np.intp]], NDArray[np.float64]],
+            members: Sequence[tuple[int, ...]], rigid: RigidFitError,
+            bias: Optional[BiasPosterior], first_unit: Optional[int], now: float,
+            d: int) -> tuple[list[int], list[float], list[float]]:
+    """The greedy sequence of :func:`plan`: at each step the unit whose measurement is expected
+    to leave the smallest median (``first_unit`` first when given), conditioned on the units
+    chosen before (rank-one or rank-m updates of ``rigid`` and ``bias``). Returns the units,
+    the expected median after each, and the best unit's gain at each step."""
+    n_units = len(members)
+    chosen = np.zeros(n_units, dtype=bool)
+    guess = medians.copy()                       # warm start of the next step's medians
+    sequence: list[int] = []
+    expected: list[float] = []
+    step_gains: list[float] = []
+    before = now
+    for i in range(count):
+        active = np.flatnonzero(~chosen)
+        med = medians if i == 0 else pooled_median(after(active), d, guess[active])
+        guess[active] = med
+        k = int(np.argmin(med))                  # first of equals: the lowest index
+        best, value = int(active[k]), float(med[k])
+        step_gains.append(before - value)
+        if i == 0 and first_unit is not None:
+            best, value = first_unit, float(med[first_unit])
+        sequence.append(best)
+        expected.append(value)
+        chosen[best] = True
+        before = value
+        if i + 1 < count:
+            for m in members[best]:
+                rigid.add(m)
+                if bias is not None:
+                    bias.add(m)
+    return sequence, expected, step_gains
+
+
 def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedErrorModel,
          targets: Optional[ArrayLike] = None, *, count: int = 1,
          repeats: Optional[ArrayLike] = None, config: PlanConfig = DEFAULT_PLAN_CONFIG,
@@ -421,19 +509,9 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
                                   and 0 <= int(first) < len(c)):
         raise ValueError(f"first must be a candidate index in [0, {len(c)}), got {first!r}")
     on_targets = targets is not None
-    t = as_points(targets, "targets", d, 1) if on_targets else None
-    check_near(c, x, "candidate", t)
-    check_candidates_reach(c, x)
+    pts = _error_points(x, c, targets, config)
     inv_n = inverse_repeats(repeats, len(x))
     n_cand, n_target = measurement_repeats(config, repeats)
-    pts = t if on_targets else work_volume(np.vstack([x, c]), config.work_volume_points)
-    if on_targets:
-        check_near(pts, x, "target", c, itself=False)
-    if len(c) * len(pts) > MAX_CANDIDATE_POINTS:
-        kind = "targets" if on_targets else "work-volume points"
-        raise ValueError(f"{len(c)} candidates x {len(pts)} {kind} = {len(c) * len(pts):,} is "
-                         f"more than one plan holds ({MAX_CANDIDATE_POINTS:,}): give fewer "
-                         f"candidates or targets")
 
     inv_nc = 1.0 / n_cand
     rigid = RigidFitError(x, fiducial_covariance(error_model, inv_n), c,
@@ -443,53 +521,17 @@ def plan(fiducials: ArrayLike, candidates: ArrayLike, error_model: ExpectedError
     const = target_noise(error_model, n_target) + \
         (0.0 if error_model.corrected else d * error_model.signal_std ** 2)
     cal2 = error_model.calibration ** 2
-    singles = all(len(m) == 1 for m in members)
-    padded = _padded(members)
-
-    def after(active: NDArray[np.intp]) -> NDArray[np.float64]:
-        if singles:
-            idx = padded[active, 0]
-            e = rigid.after_each(idx) + const
-            return cal2 * (e + bias.after_each(idx) if bias is not None else e)
-        e = rigid.after_units(padded[active]) + const
-        return cal2 * (e + bias.after_units(padded[active]) if bias is not None else e)
-
+    after = _after(members, rigid, bias, const, cal2)
     now_sq = cal2 * (rigid.now() + const + (bias.now() if bias is not None else 0.0))
     now = float(pooled_median(now_sq, d))
-    with_all = None
-    if len(x) + len(c) <= ALL_CANDIDATES_MAX:
-        n_all = np.concatenate([1.0 / inv_n, np.full(len(c), float(n_cand))])
-        with_all = float(pooled_median(expected_squared_errors(
-            np.vstack([x, c]), pts, error_model, n_all, n_target), d))
+    with_all = _with_all(x, c, pts, error_model, inv_n, n_cand, n_target)
     n_units = len(members)
     medians = pooled_median(after(np.arange(n_units)), d, np.full(n_units, now))
     gains = now - medians
-    chosen = np.zeros(n_units, dtype=bool)
-    guess = medians.copy()                       # warm start of the next step's medians
-    sequence: list[int] = []
-    expected: list[float] = []
-    step_gains: list[float] = []
-    before = now
     first_unit = None if first is None else next(u for u, m in enumerate(members)
                                                  if int(first) in m)
-    for i in range(count):
-        active = np.flatnonzero(~chosen)
-        med = medians if i == 0 else pooled_median(after(active), d, guess[active])
-        guess[active] = med
-        k = int(np.argmin(med))                  # first of equals: the lowest index
-        best, value = int(active[k]), float(med[k])
-        step_gains.append(before - value)
-        if i == 0 and first_unit is not None:
-            best, value = first_unit, float(med[first_unit])
-        sequence.append(best)
-        expected.append(value)
-        chosen[best] = True
-        before = value
-        if i + 1 < count:
-            for m in members[best]:
-                rigid.add(m)
-                if bias is not None:
-                    bias.add(m)
+    sequence, expected, step_gains = _greedy(count, medians, after, members, rigid, bias,
+                                             first_unit, now, d)
     holds = [r for r in (held_back, unresolved_bias(x, error_model) if error_model.corrected
                          else None) if r]
     top = int(np.argmin(medians))
