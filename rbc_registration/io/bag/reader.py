@@ -199,6 +199,26 @@ def _xyz(p: Any) -> tuple[float, float, float]:
     return (float(p.x), float(p.y), float(p.z))
 
 
+def _checked_types(path: Union[str, Path], reader: Any, topics: Topics,
+                   expected: dict[str, str], required: Sequence[str]) -> dict[str, str]:
+    """The bag's ``{topic: type}``, refused (naming the topics in the bag) when a required
+    topic is missing, a topic has the wrong type or none of the input topics is there."""
+    types = topic_types(reader)
+    listing = ", ".join(f"{t} [{ty}]" for t, ty in sorted(types.items())) or "none"
+    for topic in required:
+        if topic not in types:
+            raise BagError(f"bag {path}: no topic {topic} (topics in the bag: {listing})")
+    for topic, want in expected.items():
+        if topic in types and types[topic] != want:
+            raise BagError(f"bag {path}: topic {topic} has type {types[topic]}, "
+                           f"expected {want}")
+    if not any(t in types for t in topics[:3]):
+        raise BagError(f"bag {path}: none of the input topics {', '.join(topics[:3])} "
+                       f"(topics in the bag: {listing}); name them with --fiducial-topic, "
+                       "--working-topic, --destination-topic")
+    return types
+
+
 def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
              required: Sequence[str] = (), progress: bool = True) -> BagContents:
     """Read the node's inputs and the targets from a bag.
@@ -222,20 +242,7 @@ def read_bag(path: Union[str, Path], topics: Topics = DEFAULT_TOPICS,
                 topics.destination_point: POINT_STAMPED, topics.targets: FIDUCIAL_PAIR}
     store = make_typestore()
     with open_bag(path) as reader:
-        types = topic_types(reader)
-        listing = ", ".join(f"{t} [{ty}]" for t, ty in sorted(types.items())) or "none"
-        for topic in required:
-            if topic not in types:
-                raise BagError(f"bag {path}: no topic {topic} (topics in the bag: {listing})")
-        for topic, want in expected.items():
-            if topic in types and types[topic] != want:
-                raise BagError(f"bag {path}: topic {topic} has type {types[topic]}, "
-                               f"expected {want}")
-        inputs = [t for t in topics[:3] if t in types]
-        if not inputs:
-            raise BagError(f"bag {path}: none of the input topics {', '.join(topics[:3])} "
-                           f"(topics in the bag: {listing}); name them with --fiducial-topic, "
-                           "--working-topic, --destination-topic")
+        types = _checked_types(path, reader, topics, expected, required)
         wanted = [t for t in expected if t in types]
         legacy_store = legacy_typestore()
         legacy = _legacy_topics(reader, wanted, legacy_store)
