@@ -95,6 +95,22 @@ class TargetTable:
     groups: Optional[tuple[str, ...]] = None
 
 
+def header_problem(p: Path, header: list[str], required: Sequence[str]) -> Optional[CsvError]:
+    """The error of a CSV header that is empty, not a header of points (another separator or
+    decimal comma: :func:`_header_hint`) or names a column twice; None when it is sound."""
+    if not header:
+        return CsvError(f"{p}: empty file (expected a header {','.join(required)})")
+    hint = _header_hint(header)
+    if hint:
+        return CsvError(f"{p}: the header {','.join(header)!r} {hint}; expected comma-separated "
+                        f"columns {','.join(required)} (decimal point '.') in its first line")
+    twice = sorted({h for h in header if h and header.count(h) > 1})
+    if twice:
+        return CsvError(f"{p}: column(s) {', '.join(twice)} appear more than once in the header "
+                        f"{','.join(header)}")
+    return None
+
+
 def _read_rows(path: PathLike, required: list[str], max_rows: Optional[int] = None,
                kind: str = "data"
                ) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
@@ -131,16 +147,9 @@ def _read_rows(path: PathLike, required: list[str], max_rows: Optional[int] = No
         why = (": an opening quote (\") without its closing one, or not a CSV file of points"
                if "field limit" in str(exc) else "")
         raise CsvError(f"{p}: not a readable CSV file ({exc}){why}") from None
-    if not header:
-        raise CsvError(f"{p}: empty file (expected a header {','.join(required)})")
-    hint = _header_hint(header)
-    if hint:
-        raise CsvError(f"{p}: the header {','.join(header)!r} {hint}; expected comma-separated "
-                       f"columns {','.join(required)} (decimal point '.') in its first line")
-    twice = sorted({h for h in header if h and header.count(h) > 1})
-    if twice:
-        raise CsvError(f"{p}: column(s) {', '.join(twice)} appear more than once in the header "
-                       f"{','.join(header)}")
+    problem = header_problem(p, header, required)
+    if problem is not None:
+        raise problem
     _refuse_swallowed_rows(p, header, rows)
     for line, row in rows:
         rest = row.get("")                 # csv.DictReader's list of fields beyond the header

@@ -45,7 +45,7 @@ from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.files import NotARegularFile, check_input_file
 from .progress import Progress
 from .csv_io import (COPY_MATCHES, COPY_RUN, MAX_CSV_BYTES, CsvError, PathLike, _dimension,
-                     _header_hint, _ignored_rows_notes, _likely_format, _number,
+                     _header_hint, _ignored_rows_notes, _likely_format, _number, header_problem,
                      _refuse_swallowed_rows, _repeat_limits)
 
 #: Rows parsed per chunk (and records per read of the spool).
@@ -458,17 +458,9 @@ def _parse(path: PathLike, dim: Optional[int], progress: bool = False) -> _Parse
 
 def _first_error(p: Path, header: list[str], missing: list[str], n_rows: int,
                  errors: dict[str, CsvError]) -> Optional[CsvError]:
-    required = REQUIRED
-    if not header:
-        return CsvError(f"{p}: empty file (expected a header {','.join(required)})")
-    hint = _header_hint(header)
-    if hint:
-        return CsvError(f"{p}: the header {','.join(header)!r} {hint}; expected comma-separated "
-                        f"columns {','.join(required)} (decimal point '.') in its first line")
-    twice = sorted({h for h in header if h and header.count(h) > 1})
-    if twice:
-        return CsvError(f"{p}: column(s) {', '.join(twice)} appear more than once in the "
-                        f"header {','.join(header)}")
+    problem = header_problem(p, header, REQUIRED)
+    if problem is not None:
+        return problem
     for kind in ("swallowed", "extra"):
         if kind in errors:
             return errors[kind]
