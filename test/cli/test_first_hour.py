@@ -233,7 +233,7 @@ def test_targets_without_truth_print_the_point_to_use_in_the_files_unit(cell, ca
 
 
 def test_a_2d_table_prints_the_points_x_and_y(capsys, tmp_path):
-    plate = Path(cli.__file__).resolve().parents[2] / "examples" / "plate2d"
+    plate = Path(__file__).resolve().parents[2] / "examples" / "plate2d"   # the repository's
     capsys.readouterr()
     assert cli.main(["register", str(plate / "fiducials.csv"), "--targets",
                      str(plate / "targets.csv"), "--json", str(tmp_path / "r.json")]) == 0
