@@ -325,20 +325,28 @@ def read_fiducials(path: PathLike, dim: Optional[int] = None,
                          group_column, plan)
 
 
+def reference_session(path: PathLike, order: Sequence[str],
+                      reference_sessions: Optional[Sequence[str]]) -> Optional[str]:
+    """The session the fiducials are re-stationed into: the latest (in ``order``, the
+    fiducials' sessions) of the targets' ``reference_sessions``; None without targets' sessions
+    (then the latest session). A target session no fiducial was measured in is refused."""
+    if not reference_sessions:
+        return None
+    unknown = [s for s in dict.fromkeys(reference_sessions) if s not in order]
+    if unknown:
+        raise CsvError(f"{path}: the targets' session(s) {', '.join(map(repr, unknown))} "
+                       f"are not among the fiducials' sessions {', '.join(order)}: targets "
+                       "can only be placed in a session the fiducials were measured in")
+    return [s for s in order if s in set(reference_sessions)][-1]
+
+
 def _restation(path: PathLike, parsed: list, sessions: dict[int, str],
                reference_sessions: Optional[Sequence[str]]) -> tuple[SessionPlan, list]:
     """The session plan of the rows and the rows with their working points in the reference
     session's frame; rows of a session kept apart are left out."""
     labels = [sessions[p[0]] for p in parsed]
     order = list(dict.fromkeys(labels))
-    reference = None
-    if reference_sessions:
-        unknown = [s for s in dict.fromkeys(reference_sessions) if s not in order]
-        if unknown:
-            raise CsvError(f"{path}: the targets' session(s) {', '.join(map(repr, unknown))} "
-                           f"are not among the fiducials' sessions {', '.join(order)}: targets "
-                           "can only be placed in a session the fiducials were measured in")
-        reference = [s for s in order if s in set(reference_sessions)][-1]
+    reference = reference_session(path, order, reference_sessions)
     points = np.array([p[3] for p in parsed], dtype=np.float64)
     plan = estimate_sessions(session_cells([p[1] for p in parsed], labels, points), reference)
     moved, keep = plan.apply(points, labels)

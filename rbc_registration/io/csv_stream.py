@@ -45,8 +45,8 @@ from ..core.validation import MAX_ABS_COORDINATE
 from ..pipeline.files import NotARegularFile, check_input_file
 from .progress import Progress
 from .csv_io import (COPY_MATCHES, COPY_RUN, MAX_CSV_BYTES, CsvError, PathLike, _dimension,
-                     _header_hint, _ignored_rows_notes, _likely_format, _number, header_problem,
-                     _refuse_swallowed_rows, _repeat_limits)
+                     _header_hint, _ignored_rows_notes, _likely_format, _number,
+                     _refuse_swallowed_rows, _repeat_limits, header_problem, reference_session)
 
 #: Rows parsed per chunk (and records per read of the spool).
 CHUNK_ROWS = 16384
@@ -530,14 +530,7 @@ def _plan(path: PathLike, parsed: _Parsed, reference_sessions: Optional[Sequence
           ) -> SessionPlan:
     """:func:`~.csv_io._restation`'s session plan from the per (session, id) sums."""
     order = list(parsed.sessions)
-    reference = None
-    if reference_sessions:
-        unknown = [s for s in dict.fromkeys(reference_sessions) if s not in order]
-        if unknown:
-            raise CsvError(f"{path}: the targets' session(s) {', '.join(map(repr, unknown))} "
-                           f"are not among the fiducials' sessions {', '.join(order)}: targets "
-                           "can only be placed in a session the fiducials were measured in")
-        reference = [s for s in order if s in set(reference_sessions)][-1]
+    reference = reference_session(path, order, reference_sessions)
     id_names = list(parsed.ids)
     cells: dict[str, dict[str, tuple[NDArray[np.float64], int]]] = {}
     for (s, f), k in parsed.cells.items():
