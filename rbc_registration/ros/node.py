@@ -237,15 +237,17 @@ class RegistrationNode(ServicesMixin, PublishingMixin, ParametersMixin, Planning
         self._start_planner()   # the planner's error model of every new model, in its thread
         self._worker = RecomputeWorker(self._rebuild, lambda: self._settings.debounce_period,
                                        self._on_worker_error, clock)
-        if restored:
-            self._state = BUILDING_STATE
-            self._worker.request_now()
-        self._publish_status()
         how = f" ({self._ingest.restore_summary})" if self._ingest.restore_summary else ""
+        # logged before the first rebuild and status: a model built from what was restored is
+        # never served before the line that says what was restored
         self.get_logger().info(
             f"registering {s.working_frame!r} -> {s.destination_frame!r} ({s.dimension}D); "
             f"state_dir {s.state_dir or '(none: no persistence)'}; restored {restored} "
             f"measurements{how}; /tf_static {s.tf_broadcast if self._tf.available else 'off'}")
+        if restored:
+            self._state = BUILDING_STATE
+            self._worker.request_now()
+        self._publish_status()
 
     # -- inputs -------------------------------------------------------------------------------
     def _on_fiducial_pair(self, msg: FiducialPair) -> None:
