@@ -32,8 +32,16 @@ def start_node(state_dir, log):
     return start_test_node(NAME, state_dir, log, dimension=2)
 
 
+#: ``rbc-registration`` as a shell in a terminal starts it: SIGINT at Python's handler and
+#: unblocked, whatever the test process inherited (an ignored or blocked SIGINT is passed on to
+#: children), so the test's Ctrl-C is a KeyboardInterrupt as a user's is.
+FROM_A_TERMINAL = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                   "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
+                   "from rbc_registration.cli import main; sys.exit(main(sys.argv[1:]))")
+
+
 def replay_process(bag, *options):
-    return subprocess.Popen([sys.executable, "-m", "rbc_registration.cli", "replay", str(bag),
+    return subprocess.Popen([sys.executable, "-c", FROM_A_TERMINAL, "replay", str(bag),
                              "--quiet", *options], env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
