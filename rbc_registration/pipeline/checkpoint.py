@@ -181,14 +181,7 @@ def _import(acc: FiducialAccumulator, state: dict[str, Any]) -> None:
 def replay(acc: FiducialAccumulator, records: Iterable[Record], first: int = 0) -> list[str]:
     """Commit ``records`` (numbered from ``first``) on top of the state of ``acc``, skipping
     what :meth:`~FiducialAccumulator.restore` skips, with its messages."""
-    errors = []
-    for k, record in enumerate(records, first):
-        try:
-            acc.check_record(record)
-            acc.commit(record)
-        except (TypeError, ValueError) as exc:   # RejectedMeasurement is a ValueError
-            errors.append(f"record {k} skipped: {exc}")
-    return errors
+    return acc.replay(records, first)
 
 
 def resume(acc: FiducialAccumulator, journal: Any,

@@ -121,9 +121,15 @@ def read_fd(fd: int, path: str, limit: int) -> bytes:
     size = os.fstat(fd).st_size
     if size > limit:
         raise ValueError(f"{path} is {size} bytes, more than the limit of {limit}: refused")
-    chunks, offset = [], 0
-    while offset < size:
-        chunk = os.pread(fd, min(1 << 20, size - offset), offset)
+    return pread_range(fd, 0, size)
+
+
+def pread_range(fd: int, start: int, end: int) -> bytes:
+    """Bytes ``start`` to ``end`` of the file open as ``fd``, read in 1 MiB chunks (fewer at
+    its end)."""
+    chunks, offset = [], start
+    while offset < end:
+        chunk = os.pread(fd, min(1 << 20, end - offset), offset)
         if not chunk:
             break
         chunks.append(chunk)

@@ -52,7 +52,7 @@ from typing import Any, Iterable, Optional
 
 from ..core.measurements.accumulator import Record
 from .checkpoint import JournalPosition
-from .files import open_private, private_dir, read_fd
+from .files import open_private, pread_range, private_dir, read_fd
 from .journal_records import (JOURNAL_VERSION, MAX_JOURNAL_BYTES, MAX_LINE_BYTES,
                               READABLE_VERSIONS, JournalMismatch, parse_line, record_from_json,
                               record_to_json, seal, setup_digest, unseal)
@@ -146,7 +146,7 @@ class Journal:
             if size > MAX_JOURNAL_BYTES:
                 raise ValueError(f"{self.path} is {size} bytes, more than the limit of "
                                  f"{MAX_JOURNAL_BYTES}: refused")
-            tail = _pread_all(fd, position.offset, size)
+            tail = pread_range(fd, position.offset, size)
             records, warnings, good_end, _ = self._parse(tail, position.lines, JOURNAL_VERSION)
         except BaseException:
             os.close(fd)
@@ -417,18 +417,6 @@ class Journal:
 
     def __del__(self) -> None:  # a journal dropped without close() must not leak its descriptor
         self.close()
-
-
-def _pread_all(fd: int, start: int, end: int) -> bytes:
-    """Bytes ``start`` to ``end`` of the file open as ``fd``."""
-    chunks, offset = [], start
-    while offset < end:
-        chunk = os.pread(fd, min(1 << 20, end - offset), offset)
-        if not chunk:
-            break
-        chunks.append(chunk)
-        offset += len(chunk)
-    return b"".join(chunks)
 
 
 def _stamp() -> str:

@@ -393,8 +393,13 @@ class FiducialAccumulator:
         :return: one message per skipped record (empty when all fitted).
         """
         self.clear()
+        return self.replay(records)
+
+    def replay(self, records: Iterable[Record], first: int = 0) -> list[str]:
+        """Commit ``records`` (numbered from ``first``) on top of this state, skipping those
+        :meth:`check_record` or :meth:`commit` refuses; one message per skipped record."""
         errors = []
-        for k, record in enumerate(records):
+        for k, record in enumerate(records, first):
             try:
                 self.check_record(record)
                 self.commit(record)
